@@ -1,0 +1,66 @@
+#!/usr/bin/env python3
+"""Create (or reuse) the local venv in .venv, then run the demo or the test suite.
+
+    python3 bootstrap.py demo   # consistency check of the bundled demo data
+    python3 bootstrap.py test   # the whole test suite
+
+Only python3 is needed: the venv gets the package (editable), ROS 2 Jazzy's Python
+client from PyPI and the test tools. The venv is rebuilt when setup.py or
+constraints.txt change.
+"""
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / '.venv'
+PYTHON = VENV / 'bin' / 'python'
+STAMP = VENV / '.installed-from'
+DEMO_OUTPUT = ROOT / 'out' / 'demo'
+
+
+def _install_fingerprint() -> str:
+    digest = hashlib.sha256()
+    for name in ('setup.py', 'constraints.txt'):
+        digest.update((ROOT / name).read_bytes())
+    return digest.hexdigest()
+
+
+def _run(command: list[str]) -> int:
+    print('+', ' '.join(str(part) for part in command), flush=True)
+    return subprocess.call(command, cwd=ROOT)
+
+
+def ensure_venv() -> None:
+    """Create .venv and install the package into it unless it is up to date."""
+    fingerprint = _install_fingerprint()
+    if STAMP.exists() and STAMP.read_text() == fingerprint:
+        return
+    if not PYTHON.exists():
+        import venv
+        venv.EnvBuilder(with_pip=True).create(VENV)
+    install = [str(PYTHON), '-m', 'pip', 'install', '--disable-pip-version-check', '-q',
+               '-c', str(ROOT / 'constraints.txt'), '-e', f'{ROOT}[ros,test]']
+    if _run(install) != 0:
+        sys.exit('bootstrap: installing into .venv failed (see the pip output above)')
+    STAMP.write_text(fingerprint)
+
+
+def main() -> int:
+    if len(sys.argv) < 2 or sys.argv[1] not in ('demo', 'test'):
+        print(__doc__)
+        return 2
+    ensure_venv()
+    extra = sys.argv[2:]
+    if sys.argv[1] == 'demo':
+        DEMO_OUTPUT.mkdir(parents=True, exist_ok=True)
+        return _run([str(VENV / 'bin' / 'map-consistency'), 'demo',
+                     '--output', str(DEMO_OUTPUT), *extra])
+    os.environ.setdefault('PYTHONUNBUFFERED', '1')
+    return _run([str(PYTHON), '-m', 'pytest', *extra])
+
+
+if __name__ == '__main__':
+    sys.exit(main())

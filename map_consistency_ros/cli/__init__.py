@@ -1,0 +1,1 @@
+"""The `map-consistency` command line tool."""

@@ -1,0 +1,54 @@
+"""`map-consistency`: offline consistency checks, DCS tuning, bag replay and conversion.
+
+Each subcommand lives in its own module of this package with `add_arguments(parser)` and
+`run(args) -> int`. Exit codes: 0 consistent (or success), 1 inconsistent, 2 bad input.
+"""
+import argparse
+import importlib
+import sys
+
+from map_consistency_ros.io.errors import InputError
+
+EXIT_BAD_INPUT = 2
+
+# (subcommand, module, one-line help)
+SUBCOMMANDS = [
+    ('check', 'check', 'test a CARMEN log (scans at the logged poses) for consistency'),
+    ('demo', 'demo', 'run the check on the demo data bundled with the package'),
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='map-consistency',
+        description=__doc__.split('\n\n')[0],
+        epilog='Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input.',
+    )
+    commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+    for name, module_name, help_text in SUBCOMMANDS:
+        module = importlib.import_module(f'map_consistency_ros.cli.{module_name}')
+        sub = commands.add_parser(name, help=help_text, description=module.__doc__,
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(sub)
+        sub.set_defaults(run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except InputError as error:
+        print(f'map-consistency {args.command}: {error}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as error:
+        print(f'map-consistency {args.command}: {error.filename or ""}: {error.strerror or error}',
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print('interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The science: pure numpy / scipy / numba, no ROS and no file formats."""

@@ -1,0 +1,43 @@
+"""Planar rigid transforms on pose arrays of shape (..., 3) holding (x, y, theta)."""
+import numpy as np
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Map angles to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a (+) b: the pose b, given relative to a, expressed in a's parent frame."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    cos_a, sin_a = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + cos_a * b[..., 0] - sin_a * b[..., 1]
+    y = a[..., 1] + sin_a * b[..., 0] + cos_a * b[..., 1]
+    return np.stack([x, y, wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
+
+
+def inverse(a: np.ndarray) -> np.ndarray:
+    """The pose that undoes a: compose(a, inverse(a)) is the identity."""
+    a = np.asarray(a, dtype=np.float64)
+    cos_a, sin_a = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -cos_a * a[..., 0] - sin_a * a[..., 1]
+    y = sin_a * a[..., 0] - cos_a * a[..., 1]
+    return np.stack([x, y, wrap_angle(-a[..., 2])], axis=-1)
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a^-1 (+) b: the pose b expressed in the frame of a."""
+    return compose(inverse(a), b)
+
+
+def chain(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Poses reached from `start` by composing the relative `steps` (M, 3) in order.
+
+    Returns M + 1 poses, the first being `start`.
+    """
+    poses = np.empty((len(steps) + 1, 3))
+    poses[0] = start
+    for index, step in enumerate(steps):
+        poses[index + 1] = compose(poses[index], step)
+    return poses

@@ -1,0 +1,1 @@
+"""The rclpy edge: message conversion, the live node, publishing helpers."""
