@@ -29,7 +29,7 @@ setup(
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
-        'test': ['pytest>=8', 'shapely>=2.0', 'gtsam==4.3.0'],
+        'test': ['pytest>=8', 'shapely>=2.0', 'gtsam==4.3.0', 'pyyaml'],
     },
     zip_safe=True,
     maintainer='map_consistency_ros maintainers',

@@ -12,3 +12,43 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         raise FileNotFoundError(f'real datasets not found at {SHARED_DATA}')
     return SHARED_DATA
+
+
+def rectangle_room_ranges(poses, beams=180, fov=3.141592653589793, width=8.0, height=5.0,
+                          noise=0.01, seed=0):
+    """Ranges a noisy 180-degree scanner reads in an empty width x height room (CARMEN angles)."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    angles = -fov / 2 + np.arange(beams) * fov / beams
+    ranges = np.empty((len(poses), beams))
+    for row, (x, y, theta) in enumerate(poses):
+        c, s = np.cos(theta + angles), np.sin(theta + angles)
+        with np.errstate(divide='ignore'):
+            tx = np.where(c > 0, (width - x) / c, np.where(c < 0, -x / c, np.inf))
+            ty = np.where(s > 0, (height - y) / s, np.where(s < 0, -y / s, np.inf))
+        ranges[row] = np.minimum(tx, ty) + rng.normal(0.0, noise, beams)
+    return ranges
+
+
+@pytest.fixture
+def room_log(tmp_path):
+    """Write a CARMEN log of 40 scans in a rectangular room; returns (path, poses, ranges)."""
+    import numpy as np
+
+    def write(poses=None, name='room.log'):
+        if poses is None:
+            t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+            poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
+        ranges = rectangle_room_ranges(poses)
+        lines = []
+        for index, (pose, scan) in enumerate(zip(poses, ranges)):
+            values = ' '.join(f'{r:.4f}' for r in scan)
+            pose_text = ' '.join(f'{v:.6f}' for v in pose)
+            lines.append(f'FLASER {scan.size} {values} {pose_text} {pose_text} '
+                         f'{index * 0.2:.3f} host {index * 0.2:.3f}\n')
+        path = tmp_path / name
+        path.write_text(''.join(lines))
+        return path, poses, ranges
+
+    return write

@@ -14,7 +14,11 @@ EXIT_BAD_INPUT = 2
 # (subcommand, module, one-line help)
 SUBCOMMANDS = [
     ('check', 'check', 'test a CARMEN log (scans at the logged poses) for consistency'),
-    ('demo', 'demo', 'run the check on the demo data bundled with the package'),
+    ('demo', 'demo', 'replay the demo bag bundled with the package (Intel lab, 290 scans)'),
+    ('replay', 'replay', 'a ROS 1 / ROS 2 bag through the live monitor: the verdict'),
+    ('convert', 'convert', 'CARMEN log -> rosbag2 with /scan, /trajectory, /constraints'),
+    ('evaluate', 'evaluate', 'compare the test with the Hähnel baseline on a labelled suite of real maps'),
+    ('tune', 'tune', 'find the DCS parameter Phi giving the most consistent map of a pose graph'),
 ]
 
 

@@ -1,0 +1,149 @@
+"""Figures: the map with inconsistent scans highlighted (as the paper's Fig. 1), Psi statistics."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+import numpy as np  # noqa: E402
+
+from map_consistency_ros.core import statistics  # noqa: E402
+from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
+from map_consistency_ros.core.measure import point_distances  # noqa: E402
+from map_consistency_ros.core.scan_geometry import ScanSet  # noqa: E402
+
+# An end point counts as visibly inconsistent this many pair scales inside the other polygon.
+_HIGHLIGHT_SCALES = 3.0
+
+
+def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult) -> np.ndarray:
+    """World coordinates (M, 2) of end points of flagged scans lying deep in a failed partner.
+
+    "Deep" means farther inside the partner's visibility polygon than three pair scales, the
+    points that make the pair fail (Fig. 1 of the paper).
+    """
+    flagged = result.inconsistent
+    points = []
+    for index in np.flatnonzero(result.failed):
+        i, j = result.pairs[index]
+        if not (flagged[i] or flagged[j]):
+            continue
+        limit = _HIGHLIGHT_SCALES * max(result.scales[i], result.scales[j])
+        of_j_in_i, of_i_in_j = point_distances(scans, int(i), int(j))
+        if flagged[j]:
+            points.append(scans.endpoints[j][of_j_in_i > limit])
+        if flagged[i]:
+            points.append(scans.endpoints[i][of_i_in_j > limit])
+    return np.concatenate(points) if points else np.empty((0, 2))
+
+
+def plot_map(ax, scans: ScanSet, result: ConsistencyResult | None = None, title: str = '') -> None:
+    """Draw all end points, the trajectory, flagged scans and their inconsistent end points."""
+    valid_points = scans.endpoints[scans.valid]
+    ax.scatter(valid_points[:, 0], valid_points[:, 1], s=0.05, c='0.35', linewidths=0,
+               rasterized=True)
+    ax.plot(scans.sensor_poses[:, 0], scans.sensor_poses[:, 1], lw=0.5, c='tab:blue', alpha=0.6,
+            label='trajectory')
+    if result is not None and result.inconsistent.any():
+        flagged = result.inconsistent
+        flagged_points = scans.endpoints[flagged][scans.valid[flagged]]
+        ax.scatter(flagged_points[:, 0], flagged_points[:, 1], s=0.3, c='tab:orange',
+                   linewidths=0, rasterized=True, label='inconsistent scans')
+        deep = inconsistent_endpoints(scans, result)
+        ax.scatter(deep[:, 0], deep[:, 1], s=2.0, c='red', linewidths=0,
+                   label='inconsistent end points')
+        ax.scatter(scans.sensor_poses[flagged, 0], scans.sensor_poses[flagged, 1], s=6,
+                   c='red', marker='x', linewidths=0.6)
+    if result is not None:
+        verdict = 'consistent' if result.consistent else (
+            f'inconsistent: {int(result.inconsistent.sum())} scans flagged')
+        title = f'{title}\n{verdict}' if title else verdict
+    ax.set_title(title, fontsize=9)
+    ax.set_aspect('equal')
+    ax.set_xlabel('x [m]')
+    ax.set_ylabel('y [m]')
+    ax.legend(loc='upper right', fontsize=6, markerscale=4)
+
+
+def plot_statistics(ax, result: ConsistencyResult) -> None:
+    """Histogram of Psi over the tested pairs, with the pairwise test's threshold."""
+    psi = result.statistic[result.tested]
+    threshold = statistics.normal_quantile(result.parameters.alpha)
+    if psi.size:
+        upper = max(float(np.max(psi)), threshold) + 1.0
+        bins = np.linspace(min(float(np.min(psi)), -5.0), upper, 80)
+        ax.hist(psi, bins=bins, color='tab:blue', alpha=0.8, label='tested pairs')
+        ax.set_yscale('log')
+    ax.axvline(threshold, color='red', lw=1,
+               label=f'F^-1(1 - alpha) = {threshold:.2f}')
+    ax.set_xlabel('standardized inconsistency Psi_ij')
+    ax.set_ylabel('pairs')
+    ax.set_title(f'{result.failed_pair_count} of {result.tested_pair_count} tested pairs failed',
+                 fontsize=9)
+    ax.legend(fontsize=7)
+
+
+def plot_pair(ax, scans: ScanSet, result: ConsistencyResult, index: int) -> None:
+    """Two scans of one pair: free space, end points, and the end points deep in the other."""
+    i, j = (int(value) for value in result.pairs[index])
+    of_j_in_i, of_i_in_j = point_distances(scans, i, j)
+    limit = _HIGHLIGHT_SCALES * max(result.scales[i], result.scales[j])
+    for scan, colour, inside in ((i, 'tab:blue', of_i_in_j), (j, 'tab:green', of_j_in_i)):
+        sensor = scans.sensor_poses[scan, :2]
+        outline = np.vstack([sensor, scans.endpoints[scan], sensor])
+        ax.fill(outline[:, 0], outline[:, 1], color=colour, alpha=0.08, linewidth=0)
+        valid = scans.valid[scan]
+        ax.scatter(scans.endpoints[scan][valid, 0], scans.endpoints[scan][valid, 1], s=2,
+                   c=colour, label=f'scan {scan}')
+        deep = scans.endpoints[scan][inside > limit]
+        ax.scatter(deep[:, 0], deep[:, 1], s=8, c='red')
+    inside_points = np.vstack([scans.endpoints[j][of_j_in_i > 0], scans.endpoints[i][of_i_in_j > 0]])
+    centre = inside_points.mean(axis=0) if len(inside_points) else scans.sensor_poses[i, :2]
+    ax.set_xlim(centre[0] - 4, centre[0] + 4)
+    ax.set_ylim(centre[1] - 4, centre[1] + 4)
+    ax.set_aspect('equal')
+    ax.legend(fontsize=7)
+    count = result.point_count[index]
+    ax.set_title(f'pair ({i}, {j}): Psi = {result.statistic[index]:.1f}, n = {count}, '
+                 f'mean distance {100 * result.distance_sum[index] / max(count, 1):.1f} cm\n'
+                 f's_i = {100 * result.scales[i]:.1f} cm, s_j = {100 * result.scales[j]:.1f} cm',
+                 fontsize=8)
+
+
+def save_pairs_figure(path: str | Path, scans: ScanSet, result: ConsistencyResult,
+                      count: int = 3) -> None:
+    """The `count` failed pairs with the largest Psi, side by side (red: deep end points)."""
+    strongest = np.argsort(-np.where(result.failed, result.statistic, -np.inf))[:count]
+    strongest = [index for index in strongest if result.failed[index]]
+    figure, axes = plt.subplots(1, max(len(strongest), 1), figsize=(5 * max(len(strongest), 1), 5),
+                                squeeze=False)
+    for ax, index in zip(axes[0], strongest):
+        plot_pair(ax, scans, result, int(index))
+    if not strongest:
+        axes[0, 0].set_title('no failed pair')
+    save_figure(figure, path)
+
+
+def save_map_figure(path: str | Path, scans: ScanSet, result: ConsistencyResult | None,
+                    title: str = '') -> None:
+    """Write the map figure as a PNG."""
+    figure, ax = plt.subplots(figsize=(9, 9))
+    plot_map(ax, scans, result, title)
+    save_figure(figure, path)
+
+
+def save_statistics_figure(path: str | Path, result: ConsistencyResult) -> None:
+    """Write the Psi histogram as a PNG."""
+    figure, ax = plt.subplots(figsize=(7, 4))
+    plot_statistics(ax, result)
+    save_figure(figure, path)
+
+
+def save_figure(figure, path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.tight_layout()
+    figure.savefig(path, dpi=150)
+    plt.close(figure)

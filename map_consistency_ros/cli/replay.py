@@ -1,0 +1,383 @@
+"""Replay a bag through the live node's consistency monitor and print its final verdict.
+
+Reads ROS 2 bags (mcap, sqlite3: the bag folder) and ROS 1 bags (.bag) without a ROS install.
+The scans (sensor_msgs/LaserScan) and poses are fed, in log order, to the same
+ConsistencyMonitor object the node runs, so the verdict equals what the node would publish.
+
+Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic):
+  nav_msgs/Path              the SLAM back-end's keyframe trajectory, as the node takes it:
+                             each PoseStamped stamped like its LaserScan, the full current
+                             estimate each time (a loop closure moves many poses at once);
+  nav_msgs/Odometry, geometry_msgs/PoseStamped, geometry_msgs/PoseWithCovarianceStamped
+                             one pose per message (raw odometry, a localizer): each scan takes
+                             the pose interpolated at its stamp and becomes a keyframe when the
+                             robot moved --keyframe-distance or turned --keyframe-angle; the
+                             laser offset comes from /tf_static (pose child frame -> scan frame)
+                             unless --laser-offset is given.
+std_msgs/Float64MultiArray on /constraints (optional) is passed on as the pose-graph edges.
+
+--publish plays the bag's scan, pose and constraints topics onto live ROS 2 topics instead
+(raw CDR bytes, paced at --rate times real time) to drive a running node.
+
+examples:
+  map-consistency replay intel_demo/ --report out/replay.json --plot out/map.png
+  map-consistency replay intel.orig.bag --pose-topic /odom --keyframe-distance 0.5
+  map-consistency replay run_2024_05_01/ --publish --rate 2
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from map_consistency_ros.cli import check, options, plots, report
+from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
+from map_consistency_ros.io import carmen
+from map_consistency_ros.io.bags import (PATH_TYPE, BadMessage, BagReader, BagTopics,
+                                         Constraints, OdometryKeyframes, PoseSample, Scan,
+                                         Trajectory)
+from map_consistency_ros.io.errors import InputError
+
+EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
+_SHOWN_WARNINGS = 5
+_PUBLISH_DEPTH = 1000  # deep enough that a paced burst (a Path after its scan) is not dropped
+_DRAIN_SECONDS = 0.5  # let the last messages leave before the publishers go
+_SETTLE_SECONDS = 1.0  # after the first subscribers match, for the others to match too
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bags', type=Path, nargs='+', metavar='BAG',
+                        help='ROS 1 .bag file, or rosbag2 folder (mcap / sqlite3); several files '
+                             'of one recording may be given')
+    topics = parser.add_argument_group('topics')
+    topics.add_argument('--scan-topic', default='/scan', help='LaserScan topic (%(default)s)')
+    topics.add_argument('--pose-topic', default=None,
+                        help='Path, Odometry, PoseStamped or PoseWithCovarianceStamped topic '
+                             '(default /trajectory, else the only pose topic of the bag)')
+    topics.add_argument('--constraints-topic', default='/constraints',
+                        help='Float64MultiArray edge rows, optional (%(default)s)')
+    poses = parser.add_argument_group('poses')
+    poses.add_argument('--laser-offset', type=float, nargs=3, default=None,
+                       metavar=('X', 'Y', 'THETA'),
+                       help='laser pose in the pose frame (default: /tf_static for single-pose '
+                            'topics, else 0 0 0)')
+    poses.add_argument('--stamp-tolerance', type=float, default=MonitorSettings.stamp_tolerance,
+                       metavar='SECONDS',
+                       help='pose and scan stamps this close match (default %(default)s)')
+    poses.add_argument('--keyframe-distance', type=float, default=0.5, metavar='METRES',
+                       help='single-pose topics: new keyframe after this much travel '
+                            '(default %(default)s)')
+    poses.add_argument('--keyframe-angle', type=float, default=0.25, metavar='RADIANS',
+                       help='single-pose topics: new keyframe after this much turning '
+                            '(default %(default)s)')
+    sensor = parser.add_argument_group('sensor')
+    sensor.add_argument('--max-range', type=float, default=carmen.DEFAULT_MAX_RANGE,
+                        metavar='METRES',
+                        help='usable range, capped by each scan\'s range_max (default %(default)s)')
+    options.add_test_arguments(parser)
+    check.add_output_arguments(parser)
+    parser.add_argument('--stats-plot', type=Path, metavar='PNG',
+                        help='write the histogram of Psi over the tested pairs')
+    parser.add_argument('--duration', type=float, default=None, metavar='SECONDS',
+                        help='replay only the first SECONDS of the bag')
+    play = parser.add_argument_group('publishing')
+    play.add_argument('--publish', action='store_true',
+                      help='play the bag onto live ROS 2 topics instead of checking it')
+    play.add_argument('--rate', type=float, default=1.0,
+                      help='playback speed, 1 = real time (default %(default)s)')
+    play.add_argument('--subscribers', type=int, default=1, metavar='N',
+                      help='wait (at most 10 s) until every topic has N subscribers, e.g. 2 for '
+                           'a node and a recorder (default %(default)s)')
+
+
+@dataclass
+class ReplayStats:
+    """Counts and timings of one replay."""
+
+    scans: int = 0
+    trajectories: int = 0
+    pose_messages: int = 0
+    constraint_sets: int = 0
+    warnings: list[str] = field(default_factory=list)
+    seconds: float = 0.0  # wall-clock time of the replay
+    log_seconds: float = 0.0  # bag time replayed
+
+    @property
+    def scan_rate(self) -> float:
+        """Scans replayed per wall-clock second."""
+        return self.scans / self.seconds if self.seconds > 0 else math.inf
+
+    @property
+    def realtime_rate(self) -> float:
+        """Scans per second of bag time, the rate a live node must keep up with."""
+        return self.scans / self.log_seconds if self.log_seconds > 0 else math.inf
+
+    def warn(self, text: str) -> None:
+        self.warnings.append(text)
+
+
+class Replay:
+    """Feeds one bag's records to a ConsistencyMonitor as the node would."""
+
+    def __init__(self, bag: BagReader, monitor: ConsistencyMonitor,
+                 keyframes: OdometryKeyframes | None) -> None:
+        self.bag = bag
+        self.monitor = monitor
+        self.keyframes = keyframes
+        self.stats = ReplayStats()
+
+    def run(self, progress=None, duration: float | None = None) -> MonitorSnapshot:
+        """Feed the records (of the first `duration` seconds); return the final snapshot."""
+        total = self.bag.message_count(self.bag.topics.scan)
+        started = time.perf_counter()
+        stop = math.inf if duration is None else self.bag.start_time + duration
+        for log_time, record in self.bag.records():
+            if log_time > stop:
+                break
+            self.stats.log_seconds = log_time - self.bag.start_time
+            if isinstance(record, Scan):
+                self._scan(record)
+                if progress is not None:
+                    progress(self.stats.scans, total)
+            elif isinstance(record, Trajectory):
+                self.stats.trajectories += 1
+                self._trajectory(record.stamps, record.poses)
+            elif isinstance(record, PoseSample):
+                self._pose(record)
+            elif isinstance(record, Constraints):
+                self._constraints(record.rows)
+            elif isinstance(record, BadMessage):
+                self.stats.warn(f'message {record.index} on {record.topic} ignored: '
+                                f'{record.reason}')
+        if self.monitor.pending:
+            self.monitor.refresh()
+        self.stats.seconds = time.perf_counter() - started
+        return self.monitor.snapshot()
+
+    def _scan(self, scan: Scan) -> None:
+        self.stats.scans += 1
+        if self.keyframes is not None:
+            self.keyframes.add_scan(scan)
+            return
+        self._add_scan(scan)
+
+    def _add_scan(self, scan: Scan) -> None:
+        try:
+            self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
+        except ValueError as error:
+            self.stats.warn(f'scan at {scan.stamp:.6f} skipped: {error}')
+
+    def _trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> None:
+        summary = self.monitor.update_trajectory(stamps, poses)
+        self.stats.warnings.extend(summary.warnings)
+
+    def _pose(self, sample: PoseSample) -> None:
+        self.stats.pose_messages += 1
+        placed = self.keyframes.add_pose(sample)
+        for scan in placed:
+            self._add_scan(scan)
+        if placed:
+            self.stats.trajectories += 1
+            self._trajectory(np.array(self.keyframes.stamps), np.array(self.keyframes.poses))
+
+    def _constraints(self, rows: np.ndarray) -> None:
+        self.stats.constraint_sets += 1
+        try:
+            self.monitor.set_constraints(rows)
+        except ValueError as error:
+            self.stats.warn(f'constraints set {self.stats.constraint_sets} ignored: {error}')
+
+
+def _laser_offset(bag: BagReader, args: argparse.Namespace) -> tuple[np.ndarray, str]:
+    """The laser pose in the pose frame and where it came from."""
+    if args.laser_offset is not None:
+        return np.asarray(args.laser_offset, dtype=np.float64), 'option'
+    if bag.pose_type == PATH_TYPE:
+        return np.zeros(3), 'none (Path poses are laser poses)'
+    frames = _first_frames(bag)
+    if frames is not None:
+        offset = bag.static_transform(*frames)
+        if offset is not None:
+            return offset, f'/tf_static {frames[0]} -> {frames[1]}'
+    return np.zeros(3), 'none found in /tf_static'
+
+
+def _first_frames(bag: BagReader) -> tuple[str, str] | None:
+    """(pose child frame, scan frame) of the first pose and scan messages."""
+    child = scan_frame = None
+    for _, record in bag.records():
+        if isinstance(record, PoseSample) and child is None:
+            child = record.child_frame_id or 'base_link'
+        elif isinstance(record, Scan) and scan_frame is None:
+            scan_frame = record.frame_id
+        if child is not None and scan_frame is not None:
+            return child, scan_frame
+    return None
+
+
+def open_bag(args: argparse.Namespace) -> BagReader:
+    """The reader of the bags named by parsed replay options (enter it to open)."""
+    if not args.max_range > 0:
+        raise InputError('options', f'--max-range must be positive, got {args.max_range}')
+    topics = BagTopics(scan=args.scan_topic, poses=args.pose_topic,
+                       constraints=args.constraints_topic)
+    return BagReader(args.bags, topics, max_range=args.max_range)
+
+
+def _settings(args: argparse.Namespace, offset: np.ndarray) -> MonitorSettings:
+    try:
+        return MonitorSettings(laser_offset=tuple(float(v) for v in offset),
+                               stamp_tolerance=args.stamp_tolerance)
+    except ValueError as error:
+        raise InputError('options', str(error)) from None
+
+
+def replay_bag(args: argparse.Namespace, bag: BagReader) -> tuple[MonitorSnapshot, Replay, dict]:
+    """Run the monitor over an open bag; the snapshot, the replay and the report details."""
+    try:
+        parameters = options.parameters_from_args(args)
+        keyframes = None if bag.pose_type == PATH_TYPE else OdometryKeyframes(
+            args.keyframe_distance, args.keyframe_angle)
+    except ValueError as error:
+        raise InputError('options', str(error)) from None
+    offset, offset_source = _laser_offset(bag, args)
+    monitor = ConsistencyMonitor(parameters, _settings(args, offset))
+    replay = Replay(bag, monitor, keyframes)
+    with ProgressBar('replaying', enabled=not args.quiet) as progress:
+        snapshot = replay.run(progress, args.duration)
+    details = {
+        'source': bag.source,
+        'topics': {'scan': bag.topics.scan, 'poses': bag.pose_topic, 'pose_type': bag.pose_type,
+                   'constraints': bag.topics.constraints if bag.has_constraints else None},
+        'laser_offset': offset, 'laser_offset_source': offset_source,
+        'bag_duration_seconds': bag.duration,
+        'replay': {'scan_messages': replay.stats.scans,
+                   'trajectory_updates': replay.stats.trajectories,
+                   'pose_messages': replay.stats.pose_messages,
+                   'constraint_sets': replay.stats.constraint_sets,
+                   'constraint_rows': int(monitor.constraints.shape[0]),
+                   'keyframes': snapshot.keyframe_count,
+                   'unmatched_poses': snapshot.unmatched_poses,
+                   'buffered_scans': snapshot.buffered_scans,
+                   'seconds': replay.stats.seconds,
+                   'bag_seconds_replayed': replay.stats.log_seconds,
+                   'scans_per_second': replay.stats.scan_rate,
+                   'realtime_scans_per_second': replay.stats.realtime_rate,
+                   'warnings': replay.stats.warnings},
+        'keyframe_stamps': snapshot.stamps,
+    }
+    if snapshot.model is not None:
+        model = snapshot.model
+        details['sensor_model'] = {'angle_min': model.angle_min,
+                                   'angle_increment': model.angle_increment,
+                                   'max_range': model.max_range, 'range_min': model.range_min,
+                                   'beams': int(snapshot.ranges.shape[1])}
+    if snapshot.result is not None:
+        details['inconsistent_stamps'] = snapshot.stamps[snapshot.result.inconsistent]
+    return snapshot, replay, details
+
+
+def _print_summary(snapshot: MonitorSnapshot, replay: Replay, bag: BagReader) -> None:
+    stats = replay.stats
+    print(report.format_summary(snapshot.result, bag.source))
+    print(f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
+          f'{stats.trajectories} trajectory updates')
+    print(f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
+          f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
+          f'{stats.realtime_rate:.1f} scans/s')
+    if stats.warnings:
+        print(f'  warnings              {len(stats.warnings)}')
+        for text in stats.warnings[:_SHOWN_WARNINGS]:
+            print(f'    {text}')
+
+
+def _message_class(msgtype: str):
+    """The rclpy message class of 'pkg/msg/Name'."""
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: int = 1,
+                discovery_timeout: float = 10.0) -> int:
+    """Play the scan, pose and constraints topics onto ROS 2 as raw CDR, paced at `rate`.
+
+    Waits up to `discovery_timeout` seconds until every topic has `subscribers` subscribers,
+    then a moment more for others found in the same discovery round, so that nodes started
+    just before (a node under test, a recorder) get the first messages. Publishers are reliable with
+    deep queues, compatible with both reliable and sensor-data (best effort) subscribers.
+    """
+    if not rate > 0:
+        raise InputError('options', f'--rate must be positive, got {rate}')
+    if subscribers < 0:
+        raise InputError('options', f'--subscribers must not be negative, got {subscribers}')
+    try:
+        import rclpy
+        from rclpy.context import Context
+    except ImportError as error:
+        raise InputError('--publish', f'needs rclpy from ROS 2 Jazzy ({error})') from None
+    topics = [bag.topics.scan, bag.pose_topic]
+    if bag.has_constraints:
+        topics.append(bag.topics.constraints)
+    messages = bag.raw_messages(topics)
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node('map_consistency_replay', context=context)
+        publishers = {}
+        for topic in topics:
+            msgtype = bag.topic_type(topic)
+            publishers[topic] = node.create_publisher(_message_class(msgtype), topic,
+                                                      _PUBLISH_DEPTH)
+        deadline = time.monotonic() + discovery_timeout
+        while (not all(publisher.get_subscription_count() >= subscribers
+                       for publisher in publishers.values())
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+        time.sleep(_SETTLE_SECONDS)
+        total = sum(bag.message_count(topic) for topic in topics)
+        start_wall, start_log, sent = time.monotonic(), None, 0
+        with ProgressBar('publishing', enabled=not quiet) as progress:
+            for topic, _, log_time, data in messages:
+                start_log = log_time if start_log is None else start_log
+                delay = start_wall + (log_time - start_log) / rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                publishers[topic].publish(data)
+                sent += 1
+                progress(sent, total)
+        time.sleep(_DRAIN_SECONDS)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    print(f'{bag.source}: published {sent} messages on {", ".join(topics)} '
+          f'in {time.monotonic() - start_wall:.1f} s')
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    with open_bag(args) as bag:
+        if args.publish:
+            return publish_bag(bag, args.rate, quiet=args.quiet, subscribers=args.subscribers)
+        snapshot, replay, details = replay_bag(args, bag)
+        if snapshot.result is None:
+            raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
+                                         f'{bag.topics.scan} and no pose of {bag.pose_topic} '
+                                         'matched one (check --stamp-tolerance)')
+        _print_summary(snapshot, replay, bag)
+    scans = snapshot.scans()
+    check.write_outputs(args, scans, snapshot.result, details)
+    if args.stats_plot:
+        plots.save_statistics_figure(args.stats_plot, snapshot.result)
+    for label, path in (('report', args.report), ('figure', args.plot),
+                        ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
+                        ('failed pairs figure', args.explain)):
+        if path:
+            print(f'  {label:<21} {path}', file=sys.stdout)
+    return EXIT_CONSISTENT if snapshot.result.consistent else EXIT_INCONSISTENT

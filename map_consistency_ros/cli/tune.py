@@ -1,0 +1,203 @@
+"""Tune the DCS parameter Phi of a pose graph for the most consistent map, and test that map.
+
+Searches Phi* = argmin M(Phi), the average pairwise inconsistency of the DCS solution
+(Mazuran et al., ICRA 2014, Section V): a grid over sqrt(Phi), then golden-section refinement.
+Prints Phi*, M(Phi*) and the statistical test's verdict on the map at Phi*, beside the map
+at Phi = 1. Exit code 0 when the map at Phi* is consistent, 1 when not, 2 on bad input.
+
+input forms:
+  GRAPH.g2o                 g2o SE(2) graph whose vertices carry ROBOTLASER1 lines (gm2dl)
+  GRAPH.g2o --scans LOG     scans from a CARMEN log instead: laser record k is the scan of
+                            the k-th vertex in id order
+  --build LOG RELATIONS BAG build the graph from a corrected CARMEN log, a relations file and
+                            the raw bag (see io/datasets.py); --save-graph keeps it as g2o
+
+examples:
+  map-consistency tune intel_graph.g2o --report out/tune.json --profile-plot out/profile.png
+  map-consistency tune --build intel.gfs.log intel.relations intel.orig.bag \\
+      --false-loops 100 --save-graph out/intel_f100.g2o --maps-plot out/maps.png
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from map_consistency_ros.cli import options, plots, report
+from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningResult, TuningSettings,
+                                             tune_dcs)
+from map_consistency_ros.io import carmen, datasets
+from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
+
+plt = plots.plt  # pyplot with the backend plots chose
+
+EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
+_DEFAULTS = TuningSettings()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('graph', type=Path, nargs='?', help='g2o graph file (see input forms)')
+    parser.add_argument('--scans', type=Path, metavar='LOG',
+                        help='CARMEN log with one laser record per vertex, in vertex id order')
+    parser.add_argument('--build', type=Path, nargs=3, metavar=('LOG', 'RELATIONS', 'BAG'),
+                        help='build the graph from a corrected log, relations and raw bag')
+    build = parser.add_argument_group('graph building (with --build)')
+    build.add_argument('--false-loops', type=int, default=0, metavar='N',
+                       help='add N false loop closures between random scan pairs')
+    build.add_argument('--corrupt-guess', action='store_true',
+                       help='start from a noisy propagation of the trajectory')
+    build.add_argument('--stride', type=int, default=1, help='keep every STRIDE-th scan')
+    build.add_argument('--seed', type=int, default=0, help='random seed (default %(default)s)')
+    build.add_argument('--save-graph', type=Path, metavar='G2O', help='write the built graph')
+    search = parser.add_argument_group('search')
+    search.add_argument('--phi-min', type=float, default=_DEFAULTS.phi_min)
+    search.add_argument('--phi-max', type=float, default=_DEFAULTS.phi_max)
+    search.add_argument('--grid-steps', type=int, default=_DEFAULTS.grid_steps,
+                        help='grid points over sqrt(Phi) (default %(default)s)')
+    search.add_argument('--tolerance', type=float, default=_DEFAULTS.tolerance,
+                        help='width of the final Phi bracket (default %(default)s)')
+    search.add_argument('--linear-grid', action='store_true', help='grid evenly in Phi')
+    search.add_argument('--iterations', type=int, default=_DEFAULTS.iterations,
+                        help='DCS solver iterations per Phi (default %(default)s)')
+    search.add_argument('--workers', type=int, default=_DEFAULTS.workers,
+                        help='DCS solves run at once (0: one per CPU, at most 4)')
+    options.add_sensor_arguments(parser)
+    options.add_test_arguments(parser)
+    output = parser.add_argument_group('output')
+    output.add_argument('--report', type=Path, metavar='JSON', help='write the result as JSON')
+    output.add_argument('--profile-plot', type=Path, metavar='PNG',
+                        help='write M(Phi) over the search range (the paper\'s Fig. 4, bottom)')
+    output.add_argument('--maps-plot', type=Path, metavar='PNG',
+                        help='write the map at Phi = 1 beside the map at Phi*')
+    output.add_argument('--quiet', action='store_true', help='no progress bar')
+
+
+def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
+    """The graph and the CARMEN-style record of its scans, from whichever input form was used."""
+    if (args.graph is None) == (args.build is None):
+        raise InputError('arguments', 'give either GRAPH or --build LOG RELATIONS BAG')
+    if args.build is not None:
+        try:
+            settings = datasets.BuildSettings(stride=args.stride, seed=args.seed,
+                                              false_loop_closures=args.false_loops,
+                                              corrupt_guess=args.corrupt_guess)
+        except ValueError as error:
+            raise InputError('options', str(error)) from None
+        content = datasets.build_dataset(*args.build, settings=settings)
+        if args.save_graph:
+            write_g2o(args.save_graph, content)
+    else:
+        content = read_g2o(args.graph)
+    if args.scans is not None:
+        log = carmen.read_carmen_log(args.scans)
+        if log.scan_count != content.graph.vertex_count:
+            raise InputError(str(args.scans), f'{log.scan_count} laser records for '
+                                              f'{content.graph.vertex_count} vertices')
+        return content, log
+    if content.laser is None:
+        raise InputError(str(args.graph), 'no ROBOTLASER1 lines: give the scans with --scans LOG')
+    return content, content.laser
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        settings = TuningSettings(
+            phi_min=args.phi_min, phi_max=args.phi_max, grid_steps=args.grid_steps,
+            tolerance=args.tolerance, sqrt_grid=not args.linear_grid,
+            iterations=args.iterations, workers=args.workers,
+            parameters=options.parameters_from_args(args))
+    except ValueError as error:
+        raise InputError('options', str(error)) from None
+    content, log = load_graph(args)
+    if args.scans is not None:
+        ranges, offset = log.ranges, (0.0, 0.0, 0.0)
+    else:
+        ranges, offset = content.scan_ranges(), content.laser_offset
+    try:
+        model = carmen.sensor_model(log, fov=options.fov_radians(args), max_range=args.max_range,
+                                    range_min=args.range_min)
+        profile = InconsistencyProfile(content.graph, ranges, model, offset, settings)
+    except ValueError as error:
+        raise InputError(log.path, str(error)) from None
+    started = time.perf_counter()
+    source = str(args.graph or args.build[0])
+    with ProgressBar('tuning Phi', enabled=not args.quiet) as progress:
+        try:
+            result = tune_dcs(content.graph, ranges, model, offset, settings, progress, profile)
+        except ValueError as error:
+            raise InputError(source, str(error)) from None
+    elapsed = time.perf_counter() - started
+    baseline = profile.evaluate(1.0)
+    baseline_test = check_consistency(profile.scans_at(baseline.optimization.poses),
+                                      settings.parameters,
+                                      reference_scans=profile.scans_at(
+                                          content.graph.odometry_chain()))
+    _print_summary(source, result, baseline.value, baseline_test.consistent, elapsed)
+    if args.report:
+        report.write_json(args.report, _report(source, result, model, baseline, baseline_test,
+                                               settings, elapsed))
+    if args.profile_plot:
+        _save_profile(args.profile_plot, result, settings, source)
+    if args.maps_plot:
+        _save_maps(args.maps_plot, profile, baseline.optimization.poses, baseline_test, result)
+    return EXIT_CONSISTENT if result.consistent else EXIT_INCONSISTENT
+
+
+def _print_summary(source: str, result: TuningResult, baseline_value: float,
+                   baseline_consistent: bool, elapsed: float) -> None:
+    verdict = 'CONSISTENT' if result.consistent else 'INCONSISTENT'
+    print(f'{source}: Phi* = {result.phi:.6g}, map at Phi* {verdict}')
+    print(f'  M(Phi*)               {result.average_inconsistency:.6g}')
+    print(f'  M(1)                  {baseline_value:.6g} '
+          f'({"consistent" if baseline_consistent else "inconsistent"} at Phi = 1)')
+    print(f'  inconsistent scans    {int(result.consistency.inconsistent.sum())} of '
+          f'{result.consistency.scan_count}')
+    print(f'  evaluations           {len(result.profile_phi)}')
+    print(f'  tuning time           {elapsed:.1f} s')
+
+
+def _report(source: str, result: TuningResult, model: SensorModel, baseline, baseline_test,
+            settings: TuningSettings, elapsed: float) -> dict:
+    content = report.result_report(result.consistency)
+    content.update({
+        'source': source,
+        'phi': result.phi,
+        'average_inconsistency': result.average_inconsistency,
+        'profile': {'phi': result.profile_phi, 'average_inconsistency': result.profile_value},
+        'baseline_phi_1': {'average_inconsistency': baseline.value,
+                           'summary': baseline_test.summary()},
+        'search': {key: value for key, value in vars(settings).items() if key != 'parameters'},
+        'sensor_model': vars(model),
+        'poses': result.poses,
+        'runtime_seconds': elapsed,
+    })
+    return content
+
+
+def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
+                  source: str) -> None:
+    figure, ax = plt.subplots(figsize=(5, 3.5))
+    ax.plot(result.profile_phi, result.profile_value, '.-', lw=0.8, ms=3, c='tab:blue')
+    ax.axvline(result.phi, c='red', lw=1, label=f'Phi* = {result.phi:.4g}')
+    ax.set_xscale('function', functions=(lambda x: x ** 0.5, lambda x: x ** 2))
+    ax.set_xlim(0.0, settings.phi_max * 1.03)  # keep a Phi* at the end visible
+    ax.set_xticks([value for value in (0, 1, 4, 9, 16, 25, 36) if value <= settings.phi_max])
+    ax.set_xlabel('Phi (sqrt scale)')
+    ax.set_ylabel('M(Phi)')
+    ax.set_title(Path(source).name, fontsize=9)
+    ax.legend(fontsize=7)
+    plots.save_figure(figure, path)
+
+
+def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses, baseline_test,
+               result: TuningResult) -> None:
+    figure, axes = plt.subplots(1, 2, figsize=(14, 7))
+    plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
+    plots.plot_map(axes[1], profile.scans_at(result.poses), result.consistency,
+                   f'Phi* = {result.phi:.4g}')
+    plots.save_figure(figure, path)
+

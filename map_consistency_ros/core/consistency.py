@@ -1,0 +1,248 @@
+"""The statistical map-consistency test: from placed scans to per-scan and map verdicts.
+
+Pipeline (Mazuran et al., ICRA 2014): candidate pairs from the scans' extents, the pairwise
+measure M_ij / n_ij (measure.py), per-scan half-normal scales s_i from the incremental solution
+over temporally adjacent scans (eq. 10), the one-sided pairwise test on Psi_ij with
+s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8). The map is
+consistent when no scan fails. Notation as in statistics.py.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from map_consistency_ros.core import statistics
+from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.spatial_index import candidate_pairs, extents_overlap
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class ConsistencyParameters:
+    """Confidence levels and robustifications of the test (defaults: see README, "Parameters")."""
+
+    alpha: float = 0.01  # pairwise test level (paper's alpha; original --normal-err)
+    local_alpha: float = 0.05  # level used to fit s_i on the incremental solution (--incr-normal-err)
+    failure_probability: float = 0.015  # Bernoulli p of one failed pairwise test (--binomial-prob)
+    binomial_alpha: float = 0.01  # cascaded test level (paper's alpha'; --binomial-err)
+    local_window: int = 40  # temporally adjacent scans that fit s_i, half on each side (original: +-20)
+    min_points: int = 10  # pairs with fewer inconsistent points (after trimming) are not tested
+    trim_largest: int = 10  # drop this many largest distances of a pair before its statistic
+    default_scale: float = 0.03  # s_i of a scan whose neighbourhood gives no estimate (metres)
+    min_scale: float = 0.0  # floor on every s_i (metres)
+    flag_window: int = 0  # keep a flag only with another flagged scan within this many indices (0: off)
+
+    def __post_init__(self) -> None:
+        for name in ('alpha', 'local_alpha', 'failure_probability', 'binomial_alpha'):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise ValueError(f'{name} must be in (0, 1), got {value}')
+        for name in ('local_window', 'min_points', 'trim_largest', 'flag_window'):
+            if getattr(self, name) < 0:
+                raise ValueError(f'{name} must not be negative, got {getattr(self, name)}')
+        if self.min_points < 1:
+            raise ValueError('min_points must be at least 1')
+        if self.default_scale <= 0.0 or self.min_scale < 0.0:
+            raise ValueError('default_scale must be positive and min_scale not negative')
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class ConsistencyResult:
+    """Everything the test decided, per pair (P) and per scan (N)."""
+
+    pairs: np.ndarray  # (P, 2) scan indices i < j of pairs with overlapping extents
+    distance_sum: np.ndarray  # (P,) M_ij
+    point_count: np.ndarray  # (P,) n_ij
+    tested: np.ndarray  # (P,) bool: enough points for the pairwise test
+    statistic: np.ndarray  # (P,) Psi_ij of the tested pairs (robustified), NaN elsewhere
+    failed: np.ndarray  # (P,) bool
+    scales: np.ndarray  # (N,) s_i
+    overlap_counts: np.ndarray  # (N,) r_i, tested pairs per scan
+    failed_counts: np.ndarray  # (N,) failed pairs per scan
+    critical_counts: np.ndarray  # (N,) nu-hat of each scan
+    inconsistent: np.ndarray  # (N,) bool: the scan failed its cascaded test
+    parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
+
+    @property
+    def consistent(self) -> bool:
+        return not bool(self.inconsistent.any())
+
+    @property
+    def scan_count(self) -> int:
+        return int(self.scales.size)
+
+    @property
+    def inconsistent_scans(self) -> np.ndarray:
+        return np.flatnonzero(self.inconsistent)
+
+    @property
+    def overlapping_pair_count(self) -> int:
+        return int(np.count_nonzero(self.point_count))
+
+    @property
+    def tested_pair_count(self) -> int:
+        return int(np.count_nonzero(self.tested))
+
+    @property
+    def failed_pair_count(self) -> int:
+        return int(np.count_nonzero(self.failed))
+
+    def summary(self) -> dict:
+        """The figures a report or a diagnostic shows."""
+        return {
+            'scans': self.scan_count,
+            'candidate_pairs': int(self.pairs.shape[0]),
+            'overlapping_pairs': self.overlapping_pair_count,
+            'tested_pairs': self.tested_pair_count,
+            'failed_pairs': self.failed_pair_count,
+            'inconsistent_scans': int(self.inconsistent.sum()),
+            'consistent': self.consistent,
+        }
+
+
+def _robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndarray]:
+    """M_ij and n_ij without each pair's `trim` largest distances."""
+    if trim == 0:
+        return measures.distance_sum, measures.point_count
+    if measures.largest.shape[1] < trim:
+        raise ValueError(f'measures keep {measures.largest.shape[1]} largest distances per pair, '
+                         f'trimming needs {trim}')
+    trimmed_sum = measures.distance_sum - measures.largest[:, :trim].sum(axis=1)
+    trimmed_count = measures.point_count - np.minimum(measures.point_count, trim)
+    return np.maximum(trimmed_sum, 0.0), trimmed_count
+
+
+def local_scales(measures: PairMeasures, scan_count: int,
+                 parameters: ConsistencyParameters) -> np.ndarray:
+    """s_i of every scan (eq. 10): the largest scale bound over its measured local pairs.
+
+    `measures` are the pairs of temporally adjacent scans measured on the incremental solution.
+    Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
+    """
+    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    usable = count >= parameters.min_points
+    bounds = statistics.scale_bound(distance_sum[usable], count[usable], parameters.local_alpha)
+    first, second = measures.pairs[usable, 0], measures.pairs[usable, 1]
+    scales = np.zeros(scan_count)
+    np.maximum.at(scales, first, bounds)
+    np.maximum.at(scales, second, bounds)
+    has_estimate = np.zeros(scan_count, dtype=bool)
+    has_estimate[first] = True
+    has_estimate[second] = True
+    scales[~has_estimate] = parameters.default_scale
+    return np.maximum(scales, parameters.min_scale)
+
+
+def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
+    """Keep a flag only if another flagged scan lies within `window` indices."""
+    flagged = np.flatnonzero(inconsistent)
+    kept = np.zeros_like(inconsistent)
+    for index in flagged:
+        lo, hi = np.searchsorted(flagged, [index - window, index + window + 1])
+        kept[index] = hi - lo > 1
+    return kept
+
+
+def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
+                   parameters: ConsistencyParameters) -> ConsistencyResult:
+    """The pairwise and cascaded tests on already measured pairs (no geometry)."""
+    scales = np.asarray(scales, dtype=np.float64)
+    if scales.shape != (scan_count,):
+        raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
+    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    tested = count >= parameters.min_points
+    pairs = measures.pairs
+    pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]
+    statistic = statistics.standardized_inconsistency(distance_sum, np.where(tested, count, 0),
+                                                      pair_scale)
+    failed = tested & (statistic > statistics.normal_quantile(parameters.alpha))
+    overlap_counts = (np.bincount(pairs[tested, 0], minlength=scan_count)
+                      + np.bincount(pairs[tested, 1], minlength=scan_count))
+    failed_counts = (np.bincount(pairs[failed, 0], minlength=scan_count)
+                     + np.bincount(pairs[failed, 1], minlength=scan_count))
+    critical = statistics.binomial_critical_count(overlap_counts, parameters.failure_probability,
+                                                  parameters.binomial_alpha)
+    inconsistent = failed_counts > critical
+    if parameters.flag_window > 0:
+        inconsistent = _filter_isolated_flags(inconsistent, parameters.flag_window)
+    return ConsistencyResult(
+        pairs=pairs, distance_sum=measures.distance_sum, point_count=measures.point_count,
+        tested=tested, statistic=statistic, failed=failed, scales=scales,
+        overlap_counts=overlap_counts, failed_counts=failed_counts, critical_counts=critical,
+        inconsistent=inconsistent, parameters=parameters)
+
+
+def local_pairs(scans: ScanSet, window: int) -> np.ndarray:
+    """Pairs of temporally adjacent scans (index distance <= window / 2) whose extents overlap."""
+    half = max(window // 2, 1)
+    count = scans.extents.shape[0]
+    first = np.repeat(np.arange(count), half)
+    second = first + np.tile(np.arange(1, half + 1), count)
+    keep = second < count
+    first, second = first[keep], second[keep]
+    overlap = extents_overlap(scans.extents[first], scans.extents[second])
+    return np.stack([first[overlap], second[overlap]], axis=1).astype(np.int64)
+
+
+def _select(measures: PairMeasures, rows: np.ndarray) -> PairMeasures:
+    return PairMeasures(pairs=measures.pairs[rows], distance_sum=measures.distance_sum[rows],
+                        point_count=measures.point_count[rows], largest=measures.largest[rows])
+
+
+def measure_pairs(scans: ScanSet, pairs: np.ndarray, keep_largest: int,
+                  progress: Progress | None = None, chunk: int = 8192) -> PairMeasures:
+    """pair_measures in chunks, so that long runs can report progress."""
+    if progress is None or len(pairs) <= chunk:
+        measures = pair_measures(scans, pairs, keep_largest=keep_largest)
+        if progress is not None:
+            progress(len(pairs), len(pairs))
+        return measures
+    parts = []
+    for start in range(0, len(pairs), chunk):
+        parts.append(pair_measures(scans, pairs[start:start + chunk], keep_largest=keep_largest))
+        progress(min(start + chunk, len(pairs)), len(pairs))
+    return PairMeasures(
+        pairs=np.concatenate([part.pairs for part in parts]),
+        distance_sum=np.concatenate([part.distance_sum for part in parts]),
+        point_count=np.concatenate([part.point_count for part in parts]),
+        largest=np.concatenate([part.largest for part in parts]))
+
+
+def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None = None,
+                      reference_scans: ScanSet | None = None,
+                      progress: Progress | None = None) -> ConsistencyResult:
+    """Run the whole test on scans placed in the map.
+
+    `reference_scans` are the same scans at the incremental solution (poses before loop
+    closures), from which the local scales are fitted; by default the map itself.
+    """
+    parameters = parameters or ConsistencyParameters()
+    reference = scans if reference_scans is None else reference_scans
+    if reference.ranges.shape != scans.ranges.shape:
+        raise ValueError('reference scans must be the same scans as the map scans')
+    keep = parameters.trim_largest
+    measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress)
+    if reference_scans is None:
+        # The local pairs are the candidate pairs of temporal neighbours: measured already.
+        gap = measures.pairs[:, 1] - measures.pairs[:, 0]
+        local = _select(measures, gap <= max(parameters.local_window // 2, 1))
+    else:
+        local = pair_measures(reference, local_pairs(reference, parameters.local_window),
+                              keep_largest=keep)
+    scales = local_scales(local, scans.ranges.shape[0], parameters)
+    return evaluate_pairs(measures, scales, scans.ranges.shape[0], parameters)
+
+
+def average_inconsistency(measures: PairMeasures) -> float:
+    """M(Phi) of eq. 11: the mean M_ij over the pairs whose polygons overlap (n_ij > 0)."""
+    overlapping = measures.point_count > 0
+    if not overlapping.any():
+        return 0.0
+    return float(measures.distance_sum[overlapping].mean())

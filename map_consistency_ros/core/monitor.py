@@ -1,0 +1,623 @@
+"""Incremental consistency state shared by the live node and offline bag replay.
+
+Scans arrive with stamps and are buffered (bounded) until a trajectory names a pose with the
+same stamp; the pair becomes a keyframe. Every trajectory is the SLAM back-end's full current
+estimate. The monitor keeps, per keyframe:
+
+- the current pose (for the map measures) and the incremental pose: the keyframe's first-seen
+  pose relative to its predecessor in that same trajectory, chained onto the predecessor's
+  incremental pose. Local scales (consistency.local_scales, eq. 10 of the paper) are fitted on
+  pairs of temporally adjacent keyframes at their incremental poses, which a later loop closure
+  never changes;
+- cached pair measures (M_ij / n_ij, measure.py) at the current poses. When a trajectory moves
+  poses (a loop closure), only pairs that involve moved or new keyframes are measured again,
+  with candidates from a spatial index of the scans' extents.
+
+Keyframes are identified by a stable slot (registration order); statistics run on keyframes in
+stamp order. Not thread-safe: one thread owns a monitor.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  evaluate_pairs, local_scales)
+from map_consistency_ros.core.measure import PairMeasures, pair_measures, point_distances
+from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.spatial_index import ScanExtentIndex
+
+# Waking the parallel kernel's threads costs more than measuring a few hundred pairs
+# serially (tens of ms on a busy 2-core machine, bench/bench_monitor.py); a keyframe's update
+# measures about a hundred.
+PARALLEL_MIN_PAIRS = 1000
+# Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
+_SLOT_BITS = 31
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """Bookkeeping of the monitor (the statistics are in ConsistencyParameters)."""
+
+    laser_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # laser pose in the keyframe frame
+    stamp_tolerance: float = 1e-3  # seconds between a pose stamp and its scan's stamp
+    max_buffered_scans: int = 2000  # scans waiting for a pose; the oldest are dropped beyond
+    move_tolerance: float = 0.01  # metres a keyframe must move to be measured again
+    move_angle_tolerance: float = 0.005  # radians, idem
+    cell_size: float = 8.0  # metres, cell of the spatial index of scan extents
+
+    def __post_init__(self) -> None:
+        if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
+            raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
+        if self.max_buffered_scans < 1:
+            raise ValueError('max_buffered_scans must be at least 1')
+        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be a finite non-negative number, got {value}')
+        if self.cell_size <= 0.0:
+            raise ValueError('cell_size must be positive')
+
+
+@dataclass(frozen=True)
+class UpdateSummary:
+    """What one update did."""
+
+    new_keyframes: int = 0
+    moved_keyframes: int = 0
+    measured_pairs: int = 0  # pairs whose M_ij / n_ij were computed in this update
+    unmatched_poses: int = 0  # trajectory poses with no scan (yet)
+    elapsed: float = 0.0  # seconds
+    warnings: tuple[str, ...] = ()  # input problems that were skipped, not fatal
+
+    @property
+    def changed(self) -> bool:
+        return self.new_keyframes > 0 or self.moved_keyframes > 0
+
+
+@dataclass(frozen=True)
+class MonitorSnapshot:
+    """The keyframes in stamp order and the verdict on them."""
+
+    ids: np.ndarray  # (N,) stable keyframe ids (registration order)
+    stamps: np.ndarray  # (N,) seconds
+    poses: np.ndarray  # (N, 3) current keyframe poses
+    incremental_poses: np.ndarray  # (N, 3) poses of the incremental solution
+    ranges: np.ndarray  # (N, K)
+    model: SensorModel | None
+    laser_offset: np.ndarray  # (3,)
+    result: ConsistencyResult | None  # None until there is at least one keyframe
+    buffered_scans: int = 0
+    unmatched_poses: int = 0
+    last_update: UpdateSummary = field(default_factory=UpdateSummary)
+
+    @property
+    def keyframe_count(self) -> int:
+        return int(self.stamps.size)
+
+    def scans(self) -> ScanSet:
+        """The keyframes' scans placed at their current poses."""
+        return ScanSet.from_ranges(self.ranges, sensor_poses(self.poses, self.laser_offset),
+                                   self.model)
+
+
+def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
+    """Poses of the laser for keyframe poses (N, 3) and the laser pose in the keyframe frame."""
+    return se2.compose(keyframe_poses, np.broadcast_to(laser_offset, keyframe_poses.shape))
+
+
+def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
+                           max_pairs: int = 200) -> np.ndarray:
+    """End points (M, 2) that lie inside the other scan's polygon in failed pairs (paper, Fig. 1).
+
+    Only pairs that involve an inconsistent scan count, the `max_pairs` with the largest
+    statistic, so that a badly broken map stays cheap to draw.
+    """
+    flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
+    candidates = np.flatnonzero(result.failed & flagged)
+    order = np.argsort(-result.statistic[candidates], kind='stable')
+    points = []
+    for pair in candidates[order[:max_pairs]]:
+        i, j = (int(v) for v in result.pairs[pair])
+        from_points_of_j, from_points_of_i = point_distances(scans, i, j)
+        points.append(scans.endpoints[j][from_points_of_j > 0])
+        points.append(scans.endpoints[i][from_points_of_i > 0])
+    if not points:
+        return np.zeros((0, 2))
+    return np.concatenate(points)
+
+
+def _match(queries: np.ndarray, stamps: np.ndarray, tolerance: float) -> np.ndarray:
+    """Index of the stamp nearest to each query within `tolerance`, -1 where none."""
+    found = np.full(queries.size, -1, dtype=np.int64)
+    if stamps.size == 0 or queries.size == 0:
+        return found
+    order = np.argsort(stamps, kind='stable')
+    ordered = stamps[order]
+    right = np.clip(np.searchsorted(ordered, queries), 0, ordered.size - 1)
+    left = np.clip(right - 1, 0, ordered.size - 1)
+    nearer = np.where(np.abs(ordered[left] - queries) < np.abs(ordered[right] - queries),
+                      left, right)
+    close = np.abs(ordered[nearer] - queries) <= tolerance
+    found[close] = order[nearer[close]]
+    return found
+
+
+@contextmanager
+def _threads_for(pair_count: int) -> Iterator[None]:
+    """Run numba's parallel kernels on this thread alone for small batches."""
+    if pair_count >= PARALLEL_MIN_PAIRS:
+        yield
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)  # thread-local: other threads keep their setting
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
+
+
+def _pair_keys(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    low, high = np.minimum(first, second), np.maximum(first, second)
+    return (low.astype(np.int64) << _SLOT_BITS) | high.astype(np.int64)
+
+
+def _key_slots(keys: np.ndarray) -> np.ndarray:
+    return np.stack([keys >> _SLOT_BITS, keys & ((1 << _SLOT_BITS) - 1)], axis=1)
+
+
+class _PairCache:
+    """Pair measures of slot pairs (low, high) in growable arrays, insertion order."""
+
+    def __init__(self, keep_largest: int) -> None:
+        self.size = 0
+        self._pairs = np.zeros((64, 2), dtype=np.int64)
+        self._distance_sum = np.zeros(64)
+        self._point_count = np.zeros(64, dtype=np.int64)
+        self._largest = np.zeros((64, keep_largest))
+
+    @property
+    def pairs(self) -> np.ndarray:
+        return self._pairs[:self.size]
+
+    @property
+    def keys(self) -> np.ndarray:
+        return _pair_keys(self.pairs[:, 0], self.pairs[:, 1])
+
+    def _arrays(self) -> tuple[np.ndarray, ...]:
+        return self._pairs, self._distance_sum, self._point_count, self._largest
+
+    def _keep(self, keep: np.ndarray) -> None:
+        kept = int(np.count_nonzero(keep))
+        for array in self._arrays():
+            array[:kept] = array[:self.size][keep]
+        self.size = kept
+
+    def retain(self, keys: np.ndarray) -> None:
+        """Drop every entry whose key is not in `keys`."""
+        self._keep(np.isin(self.keys, keys))
+
+    def drop_slots(self, slots: np.ndarray, slot_count: int) -> None:
+        """Drop every pair that involves one of `slots` (all below `slot_count`)."""
+        hit = np.zeros(slot_count, dtype=bool)
+        hit[slots] = True
+        involved = hit[self.pairs[:, 0]] | hit[self.pairs[:, 1]]
+        if involved.any():  # new keyframes have no pairs yet: skip the copy
+            self._keep(~involved)
+
+    def insert(self, keys: np.ndarray, measures: PairMeasures) -> None:
+        end = self.size + keys.size
+        if end > self._pairs.shape[0]:
+            capacity = max(2 * self._pairs.shape[0], end)
+            self._pairs, self._distance_sum, self._point_count, self._largest = (
+                np.concatenate([array, np.zeros((capacity - array.shape[0],) + array.shape[1:],
+                                                dtype=array.dtype)])
+                for array in self._arrays())
+        self._pairs[self.size:end] = _key_slots(keys)
+        self._distance_sum[self.size:end] = measures.distance_sum
+        self._point_count[self.size:end] = measures.point_count
+        self._largest[self.size:end] = measures.largest
+        self.size = end
+
+    def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
+        """The cached pairs as PairMeasures over scan indices `rank_of_slot[slot]` (i < j);
+        None means ranks are slots.
+
+        Copies of what a ConsistencyResult keeps (the cache changes in place later); the
+        largest distances, only read by the statistics, are a view.
+        """
+        pairs = (self.pairs.copy() if rank_of_slot is None
+                 else np.sort(rank_of_slot[self.pairs], axis=1))
+        return PairMeasures(pairs=pairs, distance_sum=self._distance_sum[:self.size].copy(),
+                            point_count=self._point_count[:self.size].copy(),
+                            largest=self._largest[:self.size])
+
+
+class _Keyframes:
+    """Growable per-keyframe arrays indexed by slot."""
+
+    def __init__(self, beams: int) -> None:
+        self.count = 0
+        self.stamps = np.zeros(16)
+        self.poses = np.zeros((16, 3))
+        self.incremental = np.zeros((16, 3))
+        self.ranges = np.zeros((16, beams))
+
+    def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
+               ranges: np.ndarray) -> int:
+        if self.count == self.stamps.size:
+            grow = self.count
+            self.stamps = np.concatenate([self.stamps, np.zeros(grow)])
+            self.poses = np.concatenate([self.poses, np.zeros((grow, 3))])
+            self.incremental = np.concatenate([self.incremental, np.zeros((grow, 3))])
+            self.ranges = np.concatenate([self.ranges, np.zeros((grow, self.ranges.shape[1]))])
+        slot = self.count
+        self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
+        self.ranges[slot] = ranges
+        self.count += 1
+        return slot
+
+    def order(self) -> np.ndarray:
+        """Slots in stamp order."""
+        return np.argsort(self.stamps[:self.count], kind='stable')
+
+
+def _same_model(a: SensorModel, b: SensorModel) -> bool:
+    return (math.isclose(a.angle_min, b.angle_min, abs_tol=1e-9)
+            and math.isclose(a.angle_increment, b.angle_increment, abs_tol=1e-12)
+            and math.isclose(a.max_range, b.max_range, abs_tol=1e-9)
+            and math.isclose(a.range_min, b.range_min, abs_tol=1e-9))
+
+
+class ConsistencyMonitor:
+    """Scans + the current trajectory -> an up-to-date consistency verdict, incrementally.
+
+    Feed it with `add_scan` and `update_trajectory` (a late scan of an already published pose
+    is registered by the next `update_trajectory` or by `refresh`); read it with `snapshot`.
+    Bad input raises ValueError and leaves the state unchanged.
+    """
+
+    def __init__(self, parameters: ConsistencyParameters | None = None,
+                 settings: MonitorSettings | None = None) -> None:
+        self.parameters = parameters or ConsistencyParameters()
+        self.settings = settings or MonitorSettings()
+        self._offset = np.asarray(self.settings.laser_offset, dtype=np.float64)
+        self._keep = max(self.parameters.trim_largest, 1)
+        self._model: SensorModel | None = None
+        self._buffer: OrderedDict[float, np.ndarray] = OrderedDict()
+        self._keyframes: _Keyframes | None = None
+        self._index = ScanExtentIndex(self.settings.cell_size)
+        self._current = _PairCache(self._keep)
+        self._local = _PairCache(self._keep)
+        self._path_stamps = np.zeros(0)
+        self._path_poses = np.zeros((0, 3))
+        self._result: ConsistencyResult | None = None
+        self._last = UpdateSummary()
+        self._unmatched = 0
+        self._constraints = np.zeros((0, 11))
+
+    # -- input -------------------------------------------------------------------------------
+
+    @property
+    def model(self) -> SensorModel | None:
+        """The beam geometry of every scan, fixed by the first scan."""
+        return self._model
+
+    @property
+    def keyframe_count(self) -> int:
+        return 0 if self._keyframes is None else self._keyframes.count
+
+    def add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
+        """Buffer one scan until a trajectory names its pose.
+
+        NaN / inf beams are kept (they count as free space up to max range). Raises ValueError
+        for a non-finite stamp, fewer than 2 beams, beams overlapping past 2 pi, a beam geometry
+        that differs from the first scan's, or a stamp already registered as a keyframe.
+        """
+        stamp = float(stamp)
+        ranges = np.asarray(ranges, dtype=np.float64)
+        if not math.isfinite(stamp):
+            raise ValueError(f'scan stamp must be finite, got {stamp}')
+        if ranges.ndim != 1 or ranges.size == 0:
+            raise ValueError(f'a scan needs a non-empty 1-D range array, got shape {ranges.shape}')
+        model.check_beam_count(ranges.size)
+        if self._model is None:
+            self._model = model
+            self._keyframes = _Keyframes(ranges.size)
+        elif not _same_model(model, self._model) or ranges.size != self._keyframes.ranges.shape[1]:
+            raise ValueError(
+                f'scan at {stamp:.6f} has {ranges.size} beams from {model.angle_min:.6g} rad '
+                f'by {model.angle_increment:.6g} rad (max range {model.max_range:g}); the monitor '
+                f'takes only scans like the first ({self._keyframes.ranges.shape[1]} beams from '
+                f'{self._model.angle_min:.6g} by {self._model.angle_increment:.6g}, max range '
+                f'{self._model.max_range:g})')
+        if self._registered_slot(stamp) is not None:
+            raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
+        self._buffer[stamp] = ranges
+        while len(self._buffer) > self.settings.max_buffered_scans:
+            self._buffer.pop(min(self._buffer))
+
+    @property
+    def pending(self) -> bool:
+        """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
+        unmatched = self._path_stamps[self._path_slots() < 0]
+        return bool(np.isfinite(self._buffer_matches(unmatched)).any())
+
+    def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
+        """Take the back-end's full current estimate: register, move, measure, test.
+
+        `stamps` (M,) seconds and `poses` (M, 3). Poses with non-finite values or a duplicated
+        stamp are skipped with a warning in the summary. Raises ValueError when the arrays do
+        not have those shapes.
+        """
+        stamps = np.asarray(stamps, dtype=np.float64)
+        poses = np.asarray(poses, dtype=np.float64)
+        if stamps.ndim != 1 or poses.shape != (stamps.size, 3):
+            raise ValueError(f'a trajectory needs stamps (M,) and poses (M, 3), got shapes '
+                             f'{stamps.shape} and {poses.shape}')
+        warnings = []
+        finite = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
+        if not finite.all():
+            warnings.append(f'{int((~finite).sum())} trajectory poses with non-finite values '
+                            'skipped')
+        stamps, poses = stamps[finite], poses[finite]
+        order = np.argsort(stamps, kind='stable')
+        stamps, poses = stamps[order], poses[order]
+        duplicate = np.zeros(stamps.size, dtype=bool)
+        duplicate[1:] = np.diff(stamps) <= 0.0
+        if duplicate.any():
+            warnings.append(f'{int(duplicate.sum())} trajectory poses with a duplicated stamp '
+                            'skipped (the first is kept)')
+        self._path_stamps, self._path_poses = stamps[~duplicate], poses[~duplicate]
+        return self._apply_path(tuple(warnings))
+
+    def refresh(self) -> UpdateSummary:
+        """Register late scans against the last trajectory (a no-op when nothing is pending)."""
+        return self._apply_path(())
+
+    def recompute(self) -> UpdateSummary:
+        """Measure every pair again from scratch (the incremental caches are rebuilt)."""
+        start = time.perf_counter()
+        self._index = ScanExtentIndex(self.settings.cell_size)
+        self._current = _PairCache(self._keep)
+        self._local = _PairCache(self._keep)
+        slots = np.arange(self.keyframe_count)
+        measured = self._measure(slots, slots) if slots.size else 0
+        self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
+                                   unmatched_poses=self._unmatched,
+                                   elapsed=time.perf_counter() - start)
+        return self._last
+
+    def set_constraints(self, rows: np.ndarray) -> None:
+        """The pose-graph edges for DCS retuning, replacing the previous set.
+
+        Rows `[stamp_from, stamp_to, dx, dy, dtheta, I11, I12, I13, I22, I23, I33]` (stamps in
+        seconds, upper triangle of the information matrix). Raises ValueError on a wrong shape,
+        non-finite values, an edge from a stamp to itself, or an information matrix that is not
+        symmetric positive definite.
+        """
+        rows = np.asarray(rows, dtype=np.float64)
+        if rows.ndim != 2 or rows.shape[1] != 11:
+            raise ValueError(f'constraint rows must have shape (E, 11), got {rows.shape}')
+        bad = ~np.isfinite(rows).all(axis=1)
+        if bad.any():
+            raise ValueError(f'constraint row {int(np.flatnonzero(bad)[0])} has non-finite values')
+        loops = np.flatnonzero(rows[:, 0] == rows[:, 1])
+        if loops.size:
+            raise ValueError(f'constraint row {int(loops[0])} connects stamp {rows[loops[0], 0]} '
+                             'to itself')
+        information = _information_matrices(rows[:, 5:])
+        not_definite = np.flatnonzero(np.linalg.eigvalsh(information)[:, 0] <= 0.0)
+        if not_definite.size:
+            raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
+                             'that is not positive definite')
+        self._constraints = rows.copy()
+
+    @property
+    def constraints(self) -> np.ndarray:
+        """The last accepted constraint rows (E, 11)."""
+        return self._constraints
+
+    # -- output ------------------------------------------------------------------------------
+
+    def pose_graph(self) -> PoseGraph | None:
+        """Keyframes (stamp order, first one fixed) and the constraints between them.
+
+        Constraint rows whose stamps match no keyframe are left out. None when there are fewer
+        than two keyframes or no constraint connects two keyframes.
+        """
+        if self.keyframe_count < 2 or self._constraints.shape[0] == 0:
+            return None
+        keyframes = self._keyframes
+        order = keyframes.order()
+        stamps = keyframes.stamps[order]
+        rows = self._constraints
+        tolerance = self.settings.stamp_tolerance
+        edge_from, edge_to = _match(rows[:, 0], stamps, tolerance), _match(rows[:, 1], stamps,
+                                                                          tolerance)
+        known = (edge_from >= 0) & (edge_to >= 0) & (edge_from != edge_to)
+        if not known.any():
+            return None
+        fixed = np.zeros(stamps.size, dtype=bool)
+        fixed[0] = True
+        return PoseGraph(poses=keyframes.poses[order], edge_from=edge_from[known],
+                         edge_to=edge_to[known], measurements=rows[known, 2:5],
+                         information=_information_matrices(rows[known, 5:]), fixed=fixed)
+
+    def snapshot(self) -> MonitorSnapshot:
+        """Copies of the keyframes in stamp order and the last verdict."""
+        if self._keyframes is None:
+            empty = np.zeros((0, 3))
+            return MonitorSnapshot(ids=np.zeros(0, dtype=np.int64), stamps=np.zeros(0),
+                                   poses=empty, incremental_poses=empty, ranges=np.zeros((0, 0)),
+                                   model=self._model, laser_offset=self._offset.copy(),
+                                   result=None, buffered_scans=len(self._buffer),
+                                   unmatched_poses=self._unmatched, last_update=self._last)
+        keyframes = self._keyframes
+        order = keyframes.order()
+        return MonitorSnapshot(
+            ids=order.astype(np.int64), stamps=keyframes.stamps[order],
+            poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
+            ranges=keyframes.ranges[order], model=self._model,
+            laser_offset=self._offset.copy(), result=self._result,
+            buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
+            last_update=self._last)
+
+    # -- bookkeeping -------------------------------------------------------------------------
+
+    def _registered_slot(self, stamp: float) -> int | None:
+        if self.keyframe_count == 0:
+            return None
+        slot = int(_match(np.array([stamp]), self._keyframes.stamps[:self._keyframes.count],
+                          self.settings.stamp_tolerance)[0])
+        return slot if slot >= 0 else None
+
+    def _buffer_matches(self, stamps: np.ndarray) -> np.ndarray:
+        """For each stamp, the matching buffered scan's stamp, NaN where none."""
+        buffered = np.fromiter(self._buffer, dtype=np.float64, count=len(self._buffer))
+        found = _match(stamps, buffered, self.settings.stamp_tolerance)
+        return np.where(found >= 0, buffered[np.maximum(found, 0)] if buffered.size else np.nan,
+                        np.nan)
+
+    def _path_slots(self) -> np.ndarray:
+        """For each pose of the last trajectory, its keyframe slot or -1."""
+        if self.keyframe_count == 0:
+            return np.full(self._path_stamps.size, -1, dtype=np.int64)
+        return _match(self._path_stamps, self._keyframes.stamps[:self._keyframes.count],
+                      self.settings.stamp_tolerance)
+
+    def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
+        start = time.perf_counter()
+        path_slots = self._path_slots()
+        moved = self._move_keyframes(path_slots)
+        new = self._register(path_slots)
+        self._unmatched = int(np.count_nonzero(self._path_slots() < 0))
+        changed = np.union1d(moved, new).astype(np.int64)
+        measured = self._measure(changed, new) if changed.size else 0
+        self._last = UpdateSummary(new_keyframes=int(new.size), moved_keyframes=int(moved.size),
+                                   measured_pairs=measured, unmatched_poses=self._unmatched,
+                                   elapsed=time.perf_counter() - start, warnings=warnings)
+        return self._last
+
+    def _move_keyframes(self, path_slots: np.ndarray) -> np.ndarray:
+        known = path_slots >= 0
+        slots, targets = path_slots[known], self._path_poses[known]
+        if slots.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        current = self._keyframes.poses[slots]
+        shift = np.hypot(*(targets[:, :2] - current[:, :2]).T)
+        turn = np.abs(se2.wrap_angle(targets[:, 2] - current[:, 2]))
+        settings = self.settings
+        moved = (shift > settings.move_tolerance) | (turn > settings.move_angle_tolerance)
+        self._keyframes.poses[slots[moved]] = targets[moved]
+        return slots[moved]
+
+    def _register(self, path_slots: np.ndarray) -> np.ndarray:
+        """New keyframes for poses whose scan is buffered; their incremental poses."""
+        new = []
+        unregistered = np.flatnonzero(path_slots < 0)
+        matches = self._buffer_matches(self._path_stamps[unregistered])
+        for index, buffered in zip(unregistered[np.isfinite(matches)],
+                                   matches[np.isfinite(matches)]):
+            if buffered not in self._buffer:
+                continue  # two poses within the tolerance of one scan: the first takes it
+            pose = self._path_poses[index]
+            incremental = self._incremental_pose(index, path_slots)
+            scan = self._buffer.pop(float(buffered))
+            slot = self._keyframes.append(float(buffered), pose, incremental, scan)
+            path_slots[index] = slot
+            new.append(slot)
+        return np.asarray(new, dtype=np.int64)
+
+    def _incremental_pose(self, index: int, path_slots: np.ndarray) -> np.ndarray:
+        """First-seen pose relative to the nearest keyframe of the same trajectory.
+
+        Path poses are in stamp order: the anchor is the nearest earlier pose that is (or has
+        just become) a keyframe, else the nearest later one (a late first scan). Without any,
+        the pose itself starts the incremental solution.
+        """
+        keyframes = np.flatnonzero(path_slots >= 0)
+        if keyframes.size == 0:
+            return self._path_poses[index]
+        earlier = keyframes[keyframes < index]
+        anchor = earlier[-1] if earlier.size else keyframes[keyframes > index][0]
+        step = se2.relative(self._path_poses[anchor], self._path_poses[index])
+        return se2.compose(self._keyframes.incremental[path_slots[anchor]], step)
+
+    def _scans(self, slots: np.ndarray, poses: np.ndarray) -> ScanSet:
+        return ScanSet.from_ranges(self._keyframes.ranges[slots],
+                                   sensor_poses(poses[slots], self._offset), self._model)
+
+    def _measure_keys(self, keys: np.ndarray, poses: np.ndarray) -> PairMeasures:
+        pairs = _key_slots(keys)
+        involved = np.unique(pairs)
+        scans = self._scans(involved, poses)
+        with _threads_for(len(pairs)):
+            return pair_measures(scans, np.searchsorted(involved, pairs), keep_largest=self._keep)
+
+    def _measure(self, changed: np.ndarray, new: np.ndarray) -> int:
+        """Measure pairs touching `changed` slots (`new` among them), update the local
+        measures, re-run the tests."""
+        keyframes = self._keyframes
+        placed = self._scans(changed, keyframes.poses)
+        self._index.update(changed, placed.extents)
+        self._current.drop_slots(changed, keyframes.count)
+        touching = self._index.pairs_touching(changed)
+        keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
+        measured = 0
+        if keys.size:
+            measures = self._measure_keys(keys, keyframes.poses)
+            keep = measures.point_count > 0  # pairs without points carry no evidence
+            self._current.insert(keys[keep], _subset(measures, keep))
+            measured += int(keys.size)
+        order = keyframes.order()
+        rank_of_slot = np.empty(keyframes.count, dtype=np.int64)
+        rank_of_slot[order] = np.arange(keyframes.count)
+        measured += self._update_local(order, rank_of_slot[new])
+        # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
+        ranks = None if np.array_equal(order, np.arange(keyframes.count)) else rank_of_slot
+        scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
+        self._result = evaluate_pairs(self._current.measures(ranks), scales, keyframes.count,
+                                      self.parameters)
+        return measured
+
+    def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
+        """Measures at the incremental poses of every pair within the local window."""
+        half = max(self.parameters.local_window // 2, 1)
+        count = order.size
+        appended = new_ranks.size == 0 or new_ranks.min() >= count - new_ranks.size
+        # Keyframes appended in stamp order only add pairs; an insertion reshapes windows.
+        ranks = np.arange(count - new_ranks.size if appended else 0, count)
+        second = np.repeat(ranks, half)
+        first = second - np.tile(np.arange(1, half + 1), ranks.size)
+        inside = first >= 0
+        required = np.unique(_pair_keys(order[first[inside]], order[second[inside]]))
+        if not appended:
+            self._local.retain(required)
+            required = required[~np.isin(required, self._local.keys)]
+        if required.size:
+            self._local.insert(required, self._measure_keys(required, self._keyframes.incremental))
+        return int(required.size)
+
+
+def _subset(measures: PairMeasures, keep: np.ndarray) -> PairMeasures:
+    return PairMeasures(pairs=measures.pairs[keep], distance_sum=measures.distance_sum[keep],
+                        point_count=measures.point_count[keep], largest=measures.largest[keep])
+
+
+def _information_matrices(upper: np.ndarray) -> np.ndarray:
+    """(E, 3, 3) symmetric matrices from rows of the upper triangle (I11 I12 I13 I22 I23 I33)."""
+    rows, cols = np.triu_indices(3)
+    matrices = np.zeros((upper.shape[0], 3, 3))
+    matrices[:, rows, cols] = upper
+    matrices[:, cols, rows] = upper
+    return matrices

@@ -1,0 +1,139 @@
+"""Which scan pairs can overlap: pairs whose polygon extents (axis-aligned boxes) intersect.
+
+Pairs with disjoint extents have disjoint polygons and so a measure of exactly zero; leaving
+them out loses nothing. Boxes that merely touch count as overlapping (closed intervals).
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+
+
+def _checked_extents(extents: np.ndarray) -> np.ndarray:
+    extents = np.asarray(extents, dtype=np.float64)
+    if extents.ndim != 2 or extents.shape[1] != 4:
+        raise ValueError(f'extents must be an (N, 4) array of (xmin, ymin, xmax, ymax), '
+                         f'got shape {extents.shape}')
+    if not np.all(np.isfinite(extents)):
+        raise ValueError('extents must be finite')
+    if np.any(extents[:, 2] < extents[:, 0]) or np.any(extents[:, 3] < extents[:, 1]):
+        raise ValueError('extents must have xmin <= xmax and ymin <= ymax')
+    return extents
+
+
+def extents_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether boxes (..., 4) a and b overlap, elementwise with broadcasting (closed boxes)."""
+    return ((a[..., 0] <= b[..., 2]) & (b[..., 0] <= a[..., 2])
+            & (a[..., 1] <= b[..., 3]) & (b[..., 1] <= a[..., 3]))
+
+
+def _as_pairs(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Unique (i, j) rows with i < j, sorted."""
+    low = np.minimum(first, second).astype(np.int64)
+    high = np.maximum(first, second).astype(np.int64)
+    span = int(high.max(initial=0)) + 1
+    keys = np.unique(low * span + high)
+    return np.stack([keys // span, keys % span], axis=1)
+
+
+def candidate_pairs(extents: np.ndarray) -> np.ndarray:
+    """All pairs (i, j), i < j, of boxes (N, 4) that overlap, as a sorted (P, 2) int64 array.
+
+    Sort and sweep along x: each box meets the boxes that start within its x interval.
+    """
+    extents = _checked_extents(extents)
+    order = np.argsort(extents[:, 0], kind='stable')
+    starts = extents[order, 0]
+    stops = np.searchsorted(starts, extents[order, 2], side='right')
+    rank = np.arange(len(order))
+    reach = np.maximum(stops - rank - 1, 0)
+    first = np.repeat(rank, reach)
+    offsets = np.arange(first.size) - np.repeat(np.cumsum(reach) - reach, reach)
+    second = first + 1 + offsets
+    first, second = order[first], order[second]
+    keep = extents_overlap(extents[first], extents[second])
+    return _as_pairs(first[keep], second[keep])
+
+
+class ScanExtentIndex:
+    """Uniform-grid hash of scan extents for incremental candidate pairs (the live node).
+
+    Each scan id is stored in every grid cell its box touches; `pairs_touching` finds the
+    overlapping pairs of a few moved scans without visiting the others. `cell_size` (metres)
+    should be about the size of a scan's extent.
+    """
+
+    def __init__(self, cell_size: float) -> None:
+        cell_size = float(cell_size)
+        if not math.isfinite(cell_size) or cell_size <= 0.0:
+            raise ValueError(f'cell_size must be a positive finite number, got {cell_size}')
+        self.cell_size = cell_size
+        self._boxes: dict[int, np.ndarray] = {}
+        self._cells: dict[int, list[tuple[int, int]]] = {}
+        self._grid: defaultdict[tuple[int, int], set[int]] = defaultdict(set)
+
+    def __len__(self) -> int:
+        return len(self._boxes)
+
+    def __contains__(self, scan_id: int) -> bool:
+        return int(scan_id) in self._boxes
+
+    def _check_known(self, ids: list[int]) -> None:
+        unknown = [scan_id for scan_id in ids if scan_id not in self._boxes]
+        if unknown:
+            raise KeyError(f'scan {unknown[0]} is not in the index')
+
+    def _cells_of(self, box: np.ndarray) -> list[tuple[int, int]]:
+        low = np.floor(box[:2] / self.cell_size).astype(np.int64)
+        high = np.floor(box[2:] / self.cell_size).astype(np.int64)
+        return [(cx, cy) for cx in range(low[0], high[0] + 1)
+                for cy in range(low[1], high[1] + 1)]
+
+    def update(self, ids: np.ndarray, extents: np.ndarray) -> None:
+        """Insert scans or move them to new extents (len(ids), 4)."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        extents = _checked_extents(extents)
+        if len(ids) != len(extents):
+            raise ValueError(f'{len(ids)} ids but {len(extents)} extents')
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError('ids must not repeat')
+        self.remove(ids[np.isin(ids, list(self._boxes))])
+        for scan_id, box in zip(ids.tolist(), extents):
+            cells = self._cells_of(box)
+            for cell in cells:
+                self._grid[cell].add(scan_id)
+            self._boxes[scan_id] = box.copy()
+            self._cells[scan_id] = cells
+
+    def remove(self, ids: np.ndarray) -> None:
+        """Forget scans; raises KeyError (and forgets none) if an id is not in the index."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
+        self._check_known(ids)
+        for scan_id in ids:
+            for cell in self._cells.pop(scan_id):
+                members = self._grid[cell]
+                members.discard(scan_id)
+                if not members:
+                    del self._grid[cell]
+            del self._boxes[scan_id]
+
+    def pairs_touching(self, ids: np.ndarray) -> np.ndarray:
+        """Every overlapping pair (i, j), i < j, that involves one of `ids`, sorted (P, 2)."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
+        self._check_known(ids)
+        first, second = [], []
+        for scan_id in ids:
+            near = set().union(*(self._grid[cell] for cell in self._cells[scan_id]))
+            near.discard(scan_id)
+            if not near:
+                continue
+            others = np.fromiter(near, dtype=np.int64, count=len(near))
+            boxes = np.array([self._boxes[other] for other in others.tolist()])
+            others = others[extents_overlap(boxes, self._boxes[scan_id])]
+            first.append(np.full(len(others), scan_id, dtype=np.int64))
+            second.append(others)
+        if not first:
+            return np.zeros((0, 2), dtype=np.int64)
+        return _as_pairs(np.concatenate(first), np.concatenate(second))

@@ -1,0 +1,112 @@
+"""The statistics of the map-consistency test (Mazuran et al., ICRA 2014, section IV).
+
+Notation of the paper, used in this module only:
+
+- M_ij, n_ij: the pairwise inconsistency of scans i and j (sum of the distances of the end points
+  of each scan that fall inside the other's visibility polygon) and the number of such points.
+- s: the scale of the half-normal distribution of one inconsistency distance; s_i is the scale
+  estimated for scan i from its temporal neighbourhood (eq. 10).
+- Psi_ij: the standardized pairwise inconsistency (eq. 5), compared with the normal quantile
+  F^-1(1 - alpha) in the one-sided pairwise test (eq. 6).
+- nu-hat: the largest number of failed pairwise tests a scan may have at confidence 1 - alpha'
+  when each test fails independently with probability p (eqs. 7-8).
+"""
+import math
+
+import numpy as np
+from numba import njit
+from scipy.special import ndtri
+
+HALFNORMAL_MEAN_FACTOR = math.sqrt(2.0 / math.pi)
+HALFNORMAL_STD_FACTOR = math.sqrt(1.0 - 2.0 / math.pi)
+
+
+def halfnormal_moments(scale: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance of |X| with X ~ N(0, s^2) (eq. 3)."""
+    scale = np.asarray(scale, dtype=np.float64)
+    return HALFNORMAL_MEAN_FACTOR * scale, (HALFNORMAL_STD_FACTOR * scale) ** 2
+
+
+def normal_quantile(upper_tail: float) -> float:
+    """F^-1(1 - upper_tail) of the standard normal distribution."""
+    if not 0.0 < upper_tail < 1.0:
+        raise ValueError(f'a tail probability must be in (0, 1), got {upper_tail}')
+    return float(-ndtri(upper_tail))
+
+
+def standardized_inconsistency(distance_sum: np.ndarray, point_count: np.ndarray,
+                               scale: np.ndarray) -> np.ndarray:
+    """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5).
+
+    Pairs without points get NaN: they carry no evidence either way.
+    """
+    distance_sum = np.asarray(distance_sum, dtype=np.float64)
+    count = np.asarray(point_count, dtype=np.float64)
+    mean, variance = halfnormal_moments(scale)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        psi = (distance_sum - mean * count) / np.sqrt(variance * count)
+    return np.where(count > 0, psi, np.nan)
+
+
+def scale_bound(distance_sum: np.ndarray, point_count: np.ndarray, alpha: float) -> np.ndarray:
+    """The smallest s with which a pair passes the pairwise test at level alpha (eq. 10).
+
+    s >= (M_ij / n_ij) / (sqrt(2/pi) + F^-1(1 - alpha) sqrt((1 - 2/pi) / n_ij)).
+    """
+    count = np.asarray(point_count, dtype=np.float64)
+    quantile = normal_quantile(alpha)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        bound = (np.asarray(distance_sum) / count) / (
+            HALFNORMAL_MEAN_FACTOR + quantile * HALFNORMAL_STD_FACTOR / np.sqrt(count))
+    return np.where(count > 0, bound, 0.0)
+
+
+@njit(cache=True)
+def _log_binomial_pmf(successes: int, trials: int, log_p: float, log_q: float) -> float:
+    # eq. 8: exp of this is C(r, i) p^i (1 - p)^(r - i), without overflowing factorials
+    return (successes * log_p + (trials - successes) * log_q + math.lgamma(trials + 1.0)
+            - math.lgamma(successes + 1.0) - math.lgamma(trials - successes + 1.0))
+
+
+@njit(cache=True)
+def _critical_count(trials: int, log_p: float, log_q: float, log_alpha: float) -> int:
+    # Grow the upper tail P(X > nu) from nu = r downwards in log space; stop before it
+    # exceeds alpha'. Adding the smallest terms first keeps the sum accurate.
+    log_tail = -np.inf
+    critical = trials
+    while critical > 0:
+        term = _log_binomial_pmf(critical, trials, log_p, log_q)
+        high = max(log_tail, term)
+        grown = high + math.log(math.exp(log_tail - high) + math.exp(term - high))
+        if grown > log_alpha:
+            break
+        log_tail = grown
+        critical -= 1
+    return critical
+
+
+@njit(cache=True)
+def _critical_counts(trials: np.ndarray, log_p: float, log_q: float,
+                     log_alpha: float) -> np.ndarray:
+    out = np.empty(trials.size, dtype=np.int64)
+    for index in range(trials.size):
+        out[index] = _critical_count(int(trials[index]), log_p, log_q, log_alpha)
+    return out
+
+
+def binomial_critical_count(trials: np.ndarray, probability: float, alpha: float) -> np.ndarray:
+    """nu-hat of eq. 7 for each number of trials r: min nu with P(X > nu) <= alpha', X ~ B(r, p).
+
+    Computed in log space (eq. 8), stable for r in the tens of thousands.
+    """
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f'failure probability must be in (0, 1), got {probability}')
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f'alpha must be in (0, 1), got {alpha}')
+    trials = np.asarray(trials, dtype=np.int64)
+    if np.any(trials < 0):
+        raise ValueError('the number of trials must not be negative')
+    unique, inverse = np.unique(trials.ravel(), return_inverse=True)
+    counts = _critical_counts(unique, math.log(probability), math.log1p(-probability),
+                              math.log(alpha))
+    return counts[inverse].reshape(trials.shape)

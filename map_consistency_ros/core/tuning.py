@@ -1,0 +1,235 @@
+"""The DCS parameter search of Mazuran et al. (ICRA 2014, Section V).
+
+M(Phi), the average inconsistency of a DCS solution (eq. 11), is the mean pairwise measure
+M_ij over the scan pairs whose polygons overlap, with the scans placed at the poses DCS finds
+with parameter Phi from the graph's initial guess. Phi* = argmin M(Phi) (eq. 12) is searched
+over sqrt(Phi) (Phi is a squared quantity): a grid, then golden-section refinement around the
+best grid point until the Phi bracket is narrower than the tolerance. The statistical test
+then says whether even the map at Phi* is consistent, its local scales fitted on the
+incremental solution (the odometry chain).
+"""
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  average_inconsistency, check_consistency)
+from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
+from map_consistency_ros.core.measure import pair_measures
+from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.spatial_index import candidate_pairs
+
+Progress = Callable[[int, int], None]
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+@dataclass(frozen=True)
+class TuningSettings:
+    """Search range and resolution (defaults of the original optimizer tool) and the test.
+
+    `sqrt_grid` spaces the grid evenly in sqrt(Phi), otherwise in Phi. `workers` DCS solves
+    run at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
+    size, so memory is rarely the limit.
+    """
+
+    phi_min: float = 1e-6
+    phi_max: float = 16.0
+    grid_steps: int = 40
+    tolerance: float = 1e-4
+    sqrt_grid: bool = True
+    iterations: int = 50
+    workers: int = 0
+    parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.phi_min < self.phi_max:
+            raise ValueError(f'need 0 < phi_min < phi_max, got {self.phi_min}, {self.phi_max}')
+        if self.grid_steps < 3:
+            raise ValueError(f'grid_steps must be at least 3, got {self.grid_steps}')
+        if not self.tolerance > 0.0 or self.iterations < 1 or self.workers < 0:
+            raise ValueError('tolerance must be positive, iterations >= 1 and workers >= 0')
+
+    def grid(self) -> np.ndarray:
+        """The Phi values of the grid, increasing."""
+        if self.sqrt_grid:
+            return np.linspace(math.sqrt(self.phi_min), math.sqrt(self.phi_max),
+                               self.grid_steps) ** 2
+        return np.linspace(self.phi_min, self.phi_max, self.grid_steps)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """M(Phi) at one Phi with the optimization behind it (value inf when the solver failed)."""
+
+    phi: float
+    value: float
+    optimization: OptimizationResult
+
+
+@dataclass(frozen=True)
+class TuningResult:
+    """Phi*, M(Phi*), the optimized poses (N, 3), every evaluated (Phi, M(Phi)) sorted by Phi,
+    and the statistical test on the map at Phi*."""
+
+    phi: float
+    average_inconsistency: float
+    poses: np.ndarray
+    profile_phi: np.ndarray
+    profile_value: np.ndarray
+    consistency: ConsistencyResult
+    consistent: bool
+
+
+class InconsistencyProfile:
+    """Evaluates M(Phi) on one graph with its scans, caching every Phi evaluated.
+
+    Shared across evaluations: the sparsity analysis of the normal equations and the scans
+    (only their poses change). Every DCS solve starts from the graph's initial guess, so the
+    result of each Phi does not depend on the order of evaluation.
+    """
+
+    def __init__(self, graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
+                 laser_offset: np.ndarray = (0.0, 0.0, 0.0),
+                 settings: TuningSettings = TuningSettings()) -> None:
+        self.graph = graph
+        self.settings = settings
+        self.laser_offset = np.asarray(laser_offset, dtype=np.float64)
+        self.scans = ScanSet.from_ranges(ranges, self.sensor_poses(graph.poses), model)
+        self._system = SparseSystem(graph)
+        self._cache: dict[float, Evaluation] = {}
+
+    def sensor_poses(self, poses: np.ndarray) -> np.ndarray:
+        """Laser poses (N, 3) of the vertices at `poses`."""
+        return se2.compose(poses, self.laser_offset)
+
+    def scans_at(self, poses: np.ndarray) -> ScanSet:
+        """The graph's scans with the vertices at `poses`."""
+        return self.scans.with_poses(self.sensor_poses(poses))
+
+    def evaluate(self, phi: float) -> Evaluation:
+        """M(Phi) and its optimization (cached)."""
+        return self.evaluate_many([phi])[0]
+
+    def evaluate_many(self, phis: np.ndarray, progress: Progress | None = None,
+                      done: int = 0, total: int | None = None) -> list[Evaluation]:
+        """M(Phi) for each Phi: the DCS solves in parallel threads, the measures in turn.
+
+        The measure kernel is itself parallel, so running it from several threads at once
+        would only contend for the same cores.
+        """
+        phis = [float(phi) for phi in phis]
+        new = [phi for phi in dict.fromkeys(phis) if phi not in self._cache]
+        total = len(new) if total is None else total
+        workers = self.settings.workers or min(4, os.cpu_count() or 1)
+        with ThreadPoolExecutor(max_workers=max(1, min(workers, len(new) or 1))) as pool:
+            for count, (phi, result) in enumerate(zip(new, pool.map(self._solve, new)), 1):
+                self._cache[phi] = Evaluation(phi, self._value(result), result)
+                if progress is not None:
+                    progress(done + count, total)
+        return [self._cache[phi] for phi in phis]
+
+    def profile(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every evaluated (Phi, M(Phi)), sorted by Phi."""
+        phis = np.array(sorted(self._cache))
+        return phis, np.array([self._cache[phi].value for phi in phis])
+
+    def best(self) -> Evaluation:
+        """The evaluation with the smallest M(Phi) so far (the smaller Phi on ties)."""
+        return min(self._cache.values(), key=lambda item: (item.value, item.phi))
+
+    def _solve(self, phi: float) -> OptimizationResult:
+        return optimize(self.graph, phi, iterations=self.settings.iterations,
+                        system=self._system)
+
+    def _value(self, result: OptimizationResult) -> float:
+        if not (np.isfinite(result.cost) and np.all(np.isfinite(result.poses))):
+            return math.inf
+        scans = self.scans_at(result.poses)
+        measures = pair_measures(scans, candidate_pairs(scans.extents), keep_largest=1)
+        return average_inconsistency(measures)
+
+
+def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
+             laser_offset: np.ndarray = (0.0, 0.0, 0.0),
+             settings: TuningSettings = TuningSettings(),
+             progress: Progress | None = None,
+             profile: InconsistencyProfile | None = None) -> TuningResult:
+    """Find Phi* = argmin M(Phi) on [phi_min, phi_max] and test the map at Phi*.
+
+    `ranges (N, K)` is the scan of every vertex, taken by a laser at `laser_offset` in the
+    vertex frame. `progress(done, total)` is called after each evaluation (the total grows by
+    the refinement's estimate). Pass `profile` (built on the same graph, scans and settings)
+    to share evaluations with the caller, e.g. to look at Phi = 1 afterwards without solving
+    again. Raises ValueError when the graph cannot be solved (no edge constrains the free
+    vertices).
+    """
+    profile = profile or InconsistencyProfile(graph, ranges, model, laser_offset, settings)
+    grid = settings.grid()
+    refinements = _refinement_steps(grid, settings)
+    total = len(grid) + refinements + 1
+    values = [item.value for item in profile.evaluate_many(grid, progress, 0, total)]
+    _golden_section(profile, grid, int(np.argmin(values)), settings, progress, len(grid), total)
+    best = profile.best()
+    reference = profile.scans_at(graph.odometry_chain())
+    consistency = check_consistency(profile.scans_at(best.optimization.poses),
+                                    settings.parameters, reference_scans=reference)
+    if progress is not None:
+        progress(total, total)
+    phis, values = profile.profile()
+    return TuningResult(phi=best.phi, average_inconsistency=best.value,
+                        poses=best.optimization.poses, profile_phi=phis, profile_value=values,
+                        consistency=consistency, consistent=consistency.consistent)
+
+
+def _bracket(grid: np.ndarray, index: int, settings: TuningSettings) -> tuple[float, float]:
+    """Search coordinates (sqrt(Phi) or Phi) of the grid points on either side of `index`."""
+    low, high = grid[max(index - 1, 0)], grid[min(index + 1, len(grid) - 1)]
+    return (math.sqrt(low), math.sqrt(high)) if settings.sqrt_grid else (low, high)
+
+
+def _to_phi(coordinate: float, settings: TuningSettings) -> float:
+    return coordinate * coordinate if settings.sqrt_grid else coordinate
+
+
+def _refinement_steps(grid: np.ndarray, settings: TuningSettings) -> int:
+    """Golden-section steps needed for the widest bracket around a grid point."""
+    widest = max(grid[min(k + 1, len(grid) - 1)] - grid[max(k - 1, 0)] for k in range(len(grid)))
+    return max(0, math.ceil(math.log(settings.tolerance / widest) / math.log(_GOLDEN)))
+
+
+def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
+                    settings: TuningSettings, progress: Progress | None, done: int,
+                    total: int) -> None:
+    """Shrink the bracket around grid[index] by golden sections until its Phi width < tolerance.
+
+    M(Phi) is only pointwise evaluable and need not be smooth: the section keeps the side
+    holding the smaller value, one new evaluation per step.
+    """
+    low, high = _bracket(grid, index, settings)
+
+    def value(coordinate: float) -> float:
+        nonlocal done
+        done += 1
+        return profile.evaluate_many([_to_phi(coordinate, settings)], progress, done - 1,
+                                     total)[0].value
+
+    inner_low = high - _GOLDEN * (high - low)
+    inner_high = low + _GOLDEN * (high - low)
+    value_low, value_high = value(inner_low), value(inner_high)
+    while _to_phi(high, settings) - _to_phi(low, settings) >= settings.tolerance:
+        if value_low <= value_high:
+            high, inner_high, value_high = inner_high, inner_low, value_low
+            inner_low = high - _GOLDEN * (high - low)
+            value_low = value(inner_low)
+        else:
+            low, inner_low, value_low = inner_low, inner_high, value_high
+            inner_high = low + _GOLDEN * (high - low)
+            value_high = value(inner_high)

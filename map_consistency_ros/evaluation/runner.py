@@ -1,0 +1,228 @@
+"""Both detectors over the map suite: geometry once per map (process pool), then parameter sweeps.
+
+The expensive part, the pair measures M_ij / n_ij of the map and of its incremental solution's
+local pairs, and the baseline's per-pair log-likelihoods, is computed once per map. Sweeping
+the test's levels (alpha, alpha' = binomial_alpha, local_alpha) and the baseline's threshold
+only re-runs the statistics.
+"""
+from __future__ import annotations
+
+import itertools
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoods, map_statistic,
+                                               pair_log_likelihoods)
+from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
+                                                  evaluate_pairs, local_pairs, local_scales)
+from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.evaluation import metrics
+from map_consistency_ros.evaluation.suite import SuiteMap, SuiteParameters, keyframes
+from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class MeasureSettings:
+    """What the per-map geometry depends on (fixed during a sweep)."""
+
+    max_range: float | None = None  # None: the reader's default (8 m, as the original)
+    test: ConsistencyParameters = field(default_factory=ConsistencyParameters)
+    baseline: BaselineParameters = field(default_factory=BaselineParameters)
+
+
+@dataclass(frozen=True)
+class MeasuredMap:
+    """A suite map's label and everything the sweeps need, without the scans themselves."""
+
+    name: str
+    dataset: str
+    kind: str
+    inconsistent: bool
+    environment: str
+    scan_count: int
+    measures: PairMeasures  # candidate pairs of the map
+    local: PairMeasures  # temporally local pairs of the incremental solution
+    likelihoods: PairLikelihoods  # the baseline's, same pairs as `measures`
+    seconds_ours: float
+    seconds_baseline: float
+
+
+@dataclass(frozen=True)
+class RuntimeRow:
+    """One row of the runtime table (paper's Table I): N scans, R, K beams, seconds."""
+
+    dataset: str
+    scan_count: int
+    mean_overlaps: float  # R: scans whose extents overlap a scan's, on average
+    beam_count: int
+    seconds_ours: float
+    seconds_baseline: float
+
+
+@lru_cache(maxsize=8)
+def _log(path: Path) -> CarmenLog:
+    return read_carmen_log(path)
+
+
+def map_scans(suite_map: SuiteMap, max_range: float | None) -> ScanSet:
+    """The map's scans placed at its poses."""
+    log = _log(suite_map.log_path)
+    return ScanSet.from_ranges(log.ranges[suite_map.scan_indices], suite_map.poses,
+                               sensor_model(log, max_range=max_range))
+
+
+def measure_map(suite_map: SuiteMap, settings: MeasureSettings) -> MeasuredMap:
+    """The geometry of one map: our pair measures (map and local) and the baseline's scores."""
+    scans = map_scans(suite_map, settings.max_range)
+    reference = scans.with_poses(suite_map.reference_poses)
+    keep = settings.test.trim_largest
+    started = time.perf_counter()
+    local = pair_measures(reference, local_pairs(reference, settings.test.local_window), keep)
+    pairs = candidate_pairs(scans.extents)
+    measures = pair_measures(scans, pairs, keep)
+    middle = time.perf_counter()
+    likelihoods = pair_log_likelihoods(scans, pairs, settings.baseline)
+    ended = time.perf_counter()
+    return MeasuredMap(name=suite_map.name, dataset=suite_map.dataset, kind=suite_map.kind,
+                       inconsistent=suite_map.inconsistent, environment=suite_map.environment,
+                       scan_count=scans.scan_count, measures=measures, local=local,
+                       likelihoods=likelihoods, seconds_ours=middle - started,
+                       seconds_baseline=ended - middle)
+
+
+def _single_threaded() -> None:
+    # the pool already uses every core: numba threads inside each worker would only contend
+    numba.set_num_threads(1)
+
+
+def measure_suite(maps: Sequence[SuiteMap], settings: MeasureSettings, workers: int | None = None,
+                  progress: Progress | None = None) -> list[MeasuredMap]:
+    """measure_map over all maps with a process pool; results in the order of `maps`."""
+    workers = workers or os.cpu_count() or 1
+    results: list[MeasuredMap | None] = [None] * len(maps)
+    if workers == 1:
+        for done, suite_map in enumerate(maps, start=1):
+            results[done - 1] = measure_map(suite_map, settings)
+            if progress:
+                progress(done, len(maps))
+        return results
+    # spawned, not forked: numba's thread pool in this process does not survive a fork
+    context = multiprocessing.get_context('spawn')
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                             initializer=_single_threaded) as pool:
+        futures = {pool.submit(measure_map, suite_map, settings): index
+                   for index, suite_map in enumerate(maps)}
+        for done, future in enumerate(as_completed(futures), start=1):
+            results[futures[future]] = future.result()
+            if progress:
+                progress(done, len(maps))
+    return results
+
+
+def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParameters,
+                 scales: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """(M,) bool: the map fails the test (some scan fails its cascaded test) at `parameters`.
+
+    `scales` (per map, from `local_scales` at `parameters.local_alpha`) skips refitting them.
+    """
+    if scales is None:
+        scales = [local_scales(item.local, item.scan_count, parameters) for item in measured]
+    flagged = np.zeros(len(measured), dtype=bool)
+    for index, (item, scale) in enumerate(zip(measured, scales)):
+        result = evaluate_pairs(item.measures, scale, item.scan_count, parameters)
+        flagged[index] = not result.consistent
+    return flagged
+
+
+def labels(measured: Sequence[MeasuredMap]) -> np.ndarray:
+    """(M,) bool: the map is inconsistent by construction."""
+    return np.array([item.inconsistent for item in measured], dtype=bool)
+
+
+def sweep_ours(measured: Sequence[MeasuredMap], base: ConsistencyParameters,
+               alphas: Sequence[float], binomial_alphas: Sequence[float],
+               local_alphas: Sequence[float], flag_windows: Sequence[int] = (0,)) -> np.ndarray:
+    """Rows (alpha, binomial_alpha, local_alpha, flag_window, specificity, recall) per setting."""
+    truth = labels(measured)
+    rows = []
+    for local_alpha in local_alphas:
+        fitted = replace(base, local_alpha=local_alpha)
+        scales = [local_scales(item.local, item.scan_count, fitted) for item in measured]
+        for alpha, binomial_alpha, window in itertools.product(alphas, binomial_alphas,
+                                                               flag_windows):
+            parameters = replace(fitted, alpha=alpha, binomial_alpha=binomial_alpha,
+                                 flag_window=window)
+            flagged = our_verdicts(measured, parameters, scales)
+            rows.append((alpha, binomial_alpha, local_alpha, window,
+                         *metrics.specificity_recall(flagged, truth)))
+    return np.array(rows)
+
+
+def sweep_baseline(measured: Sequence[MeasuredMap], base: BaselineParameters,
+                   quantiles: Sequence[float]) -> np.ndarray:
+    """Rows (quantile, threshold, specificity, recall) over every distinct threshold."""
+    truth = labels(measured)
+    rows = []
+    for quantile in quantiles:
+        parameters = replace(base, quantile=quantile)
+        statistic = np.array([map_statistic(item.likelihoods, parameters) for item in measured])
+        sweep = metrics.threshold_sweep(statistic, truth)
+        rows.append(np.column_stack([np.full(len(sweep), quantile), sweep]))
+    return np.concatenate(rows)
+
+
+def _keyframe_scans(log_path: Path, suite: SuiteParameters, max_range: float | None) -> ScanSet:
+    log = _log(log_path)
+    frames = keyframes(log.laser_poses, suite.keyframe_distance, suite.keyframe_angle)
+    return ScanSet.from_ranges(log.ranges[frames], log.laser_poses[frames],
+                               sensor_model(log, max_range=max_range))
+
+
+def runtime_row(dataset: str, log_path: Path, suite: SuiteParameters,
+                settings: MeasureSettings) -> RuntimeRow:
+    """Time the full test (and the baseline) on a whole log thinned to keyframes, as Table I."""
+    scans = _keyframe_scans(log_path, suite, settings.max_range)
+    started = time.perf_counter()
+    check_consistency(scans, settings.test)
+    middle = time.perf_counter()
+    pairs = candidate_pairs(scans.extents)
+    pair_log_likelihoods(scans, pairs, settings.baseline)
+    ended = time.perf_counter()
+    return RuntimeRow(dataset=dataset, scan_count=scans.scan_count,
+                      mean_overlaps=2.0 * len(pairs) / max(scans.scan_count, 1),
+                      beam_count=int(scans.ranges.shape[1]), seconds_ours=middle - started,
+                      seconds_baseline=ended - middle)
+
+
+def runtime_table(maps: Sequence[SuiteMap], suite: SuiteParameters, settings: MeasureSettings,
+                  progress: Progress | None = None) -> list[RuntimeRow]:
+    """runtime_row for every dataset of the suite, one after the other on all cores.
+
+    A small untimed run first loads the compiled kernels, so that no row pays for that.
+    """
+    logs = {item.dataset: item.log_path for item in maps}
+    if not logs:
+        return []
+    warm = _keyframe_scans(next(iter(logs.values())), suite, settings.max_range)
+    warm = ScanSet.from_ranges(warm.ranges[:20], warm.sensor_poses[:20], warm.model)
+    check_consistency(warm, settings.test)
+    pair_log_likelihoods(warm, candidate_pairs(warm.extents), settings.baseline)
+    rows = []
+    for done, (dataset, path) in enumerate(logs.items(), start=1):
+        rows.append(runtime_row(dataset, path, suite, settings))
+        if progress:
+            progress(done, len(logs))
+    return rows

@@ -1,0 +1,230 @@
+"""CARMEN log files (plain or gzip): FLASER and ROBOTLASER1 laser records, PARAM lines.
+
+Record layouts (whitespace separated):
+
+    FLASER K r_1 .. r_K x y theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp
+    ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode
+                K r_1 .. r_K R rem_1 .. rem_R laser_x laser_y laser_theta robot_x robot_y robot_theta
+                tv rv forward_safety side_safety turn_axis ipc_timestamp host logger_timestamp
+
+FLASER's `x y theta` is the laser pose and `odom_*` the robot pose (both corrected in the
+"corrected" logs of the SLAM benchmarks). Scan index = 0-based position of the laser record in
+the file, the convention every report uses.
+"""
+from __future__ import annotations
+
+import gzip
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.io.errors import InputError
+
+DEFAULT_FOV = math.pi
+# The original implementation's usable range: readings beyond it count as free space.
+DEFAULT_MAX_RANGE = 8.0
+
+_FLASER_TAIL = 9  # pose (3), odometry pose (3), ipc timestamp, host, logger timestamp
+_ROBOTLASER_HEAD = 8  # type, start angle, fov, resolution, max range, accuracy, remission mode, K
+
+
+@dataclass(frozen=True)
+class LaserAngles:
+    """Beam geometry stated by a ROBOTLASER1 record."""
+
+    start_angle: float
+    fov: float
+    resolution: float
+    max_range: float
+
+
+@dataclass(frozen=True)
+class CarmenLog:
+    """The laser records of a CARMEN log as arrays (N records of K beams)."""
+
+    path: str
+    ranges: np.ndarray  # (N, K) metres
+    laser_poses: np.ndarray  # (N, 3) pose of the laser in the map frame
+    robot_poses: np.ndarray  # (N, 3)
+    timestamps: np.ndarray  # (N,) logger timestamps, seconds
+    line_numbers: np.ndarray  # (N,) 1-based line of each record
+    stated_angles: LaserAngles | None  # from ROBOTLASER1 records, None for FLASER-only logs
+    parameters: dict[str, str]  # PARAM name -> value
+
+    @property
+    def scan_count(self) -> int:
+        return int(self.ranges.shape[0])
+
+    @property
+    def beam_count(self) -> int:
+        return int(self.ranges.shape[1])
+
+
+def _open_text(path: Path):
+    with open(path, 'rb') as probe:
+        gzipped = probe.read(2) == b'\x1f\x8b'
+    if gzipped:
+        return gzip.open(path, 'rt', encoding='utf-8', errors='replace')
+    return open(path, encoding='utf-8', errors='replace')
+
+
+def _floats(tokens: list[str], source: str, line: int, what: str) -> np.ndarray:
+    try:
+        values = np.array(tokens, dtype=np.float64)
+    except ValueError:
+        bad = next(token for token in tokens if not _is_number(token))
+        raise InputError(source, f'non-numeric {what} {bad!r}', line) from None
+    return values
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _count(token: str, source: str, line: int, what: str) -> int:
+    try:
+        value = int(token)
+    except ValueError:
+        raise InputError(source, f'{what} must be an integer, got {token!r}', line) from None
+    if value < 0:
+        raise InputError(source, f'{what} must not be negative, got {value}', line)
+    return value
+
+
+def _need(tokens: list[str], length: int, source: str, line: int, record: str) -> None:
+    if len(tokens) < length:
+        raise InputError(source, f'truncated {record} record: {len(tokens)} fields, '
+                                 f'expected at least {length}', line)
+
+
+def _parse_flaser(tokens: list[str], source: str, line: int):
+    _need(tokens, 2, source, line, 'FLASER')
+    beams = _count(tokens[1], source, line, 'FLASER beam count')
+    _need(tokens, 2 + beams + _FLASER_TAIL, source, line, 'FLASER')
+    ranges = _floats(tokens[2:2 + beams], source, line, 'range')
+    tail = tokens[2 + beams:]
+    poses = _floats(tail[0:6], source, line, 'pose value')
+    timestamp = _floats([tail[8]], source, line, 'timestamp')[0]
+    return ranges, poses[0:3], poses[3:6], timestamp, None
+
+
+def _parse_robotlaser(tokens: list[str], source: str, line: int):
+    _need(tokens, _ROBOTLASER_HEAD + 1, source, line, 'ROBOTLASER1')
+    head = _floats(tokens[2:7], source, line, 'laser parameter')
+    beams = _count(tokens[8], source, line, 'ROBOTLASER1 beam count')
+    _need(tokens, 9 + beams + 1, source, line, 'ROBOTLASER1')
+    ranges = _floats(tokens[9:9 + beams], source, line, 'range')
+    remissions = _count(tokens[9 + beams], source, line, 'ROBOTLASER1 remission count')
+    rest = tokens[10 + beams + remissions:]
+    _need(tokens, 10 + beams + remissions + 14, source, line, 'ROBOTLASER1')
+    poses = _floats(rest[0:6], source, line, 'pose value')
+    timestamp = _floats([rest[13]], source, line, 'timestamp')[0]
+    angles = LaserAngles(start_angle=head[0], fov=head[1], resolution=head[2], max_range=head[3])
+    return ranges, poses[0:3], poses[3:6], timestamp, angles
+
+
+_PARSERS = {'FLASER': _parse_flaser, 'ROBOTLASER1': _parse_robotlaser}
+
+
+def read_carmen_log(path: str | Path) -> CarmenLog:
+    """Read every FLASER / ROBOTLASER1 record of a CARMEN log.
+
+    Raises InputError naming the file and line for a missing file, a truncated or non-numeric
+    record, records with differing beam counts, or a log without laser records.
+    """
+    path = Path(path)
+    source = str(path)
+    if not path.is_file():
+        raise InputError(source, 'no such file')
+    ranges, laser_poses, robot_poses, timestamps, lines = [], [], [], [], []
+    stated: LaserAngles | None = None
+    parameters: dict[str, str] = {}
+    try:
+        with _open_text(path) as stream:
+            for line_number, text in enumerate(stream, start=1):
+                tokens = text.split()
+                if not tokens or tokens[0].startswith('#'):
+                    continue
+                if tokens[0] == 'PARAM' and len(tokens) >= 3:
+                    parameters[tokens[1]] = tokens[2]
+                    continue
+                parser = _PARSERS.get(tokens[0])
+                if parser is None:
+                    continue
+                scan, laser_pose, robot_pose, stamp, angles = parser(tokens, source, line_number)
+                if ranges and scan.shape != ranges[0].shape:
+                    raise InputError(source, f'{scan.size} beams, but the first laser record '
+                                             f'(line {lines[0]}) has {ranges[0].size}', line_number)
+                stated = stated or angles
+                ranges.append(scan)
+                laser_poses.append(laser_pose)
+                robot_poses.append(robot_pose)
+                timestamps.append(stamp)
+                lines.append(line_number)
+    except (OSError, EOFError, UnicodeError) as error:
+        raise InputError(source, f'cannot read the file ({error})') from None
+    if not ranges:
+        raise InputError(source, 'no FLASER or ROBOTLASER1 laser records found')
+    poses = np.array(laser_poses)
+    if not np.all(np.isfinite(poses)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(poses), axis=1))[0])
+        raise InputError(source, 'laser pose is not finite', lines[bad])
+    return CarmenLog(path=source, ranges=np.array(ranges), laser_poses=poses,
+                     robot_poses=np.array(robot_poses), timestamps=np.array(timestamps),
+                     line_numbers=np.array(lines), stated_angles=stated, parameters=parameters)
+
+
+def stated_max_range(log: CarmenLog) -> float | None:
+    """The sensor's maximum range as the log states it (ROBOTLASER1 or PARAM), if it does."""
+    if log.stated_angles is not None:
+        return float(log.stated_angles.max_range)
+    value = log.parameters.get('robot_front_laser_max')
+    return float(value) if value is not None and _is_number(value) else None
+
+
+def sensor_model(log: CarmenLog, fov: float | None = None, max_range: float | None = None,
+                 range_min: float = 0.0) -> SensorModel:
+    """The beam geometry of a log's scans.
+
+    A ROBOTLASER1 record states its start angle and resolution. FLASER records do not: their
+    beams start at -FOV/2 (FOV = `fov`, default 180 degrees) and are spaced by PARAM
+    laser_front_laser_resolution if the log has it, else by FOV / K for an even beam count K and
+    FOV / (K - 1) for an odd one (the SICK convention: 181 and 361 beams include both ends).
+    That convention minimises the measure on the Intel, Freiburg 079 and Belgioioso logs.
+    `max_range` is the usable range of the test (default 8 m, as the original implementation),
+    capped by the sensor maximum the log states.
+    """
+    beams = log.beam_count
+    stated = log.stated_angles
+    resolution_param = log.parameters.get('laser_front_laser_resolution')
+    if stated is not None and fov is None:
+        increment, angle_min = stated.resolution, stated.start_angle
+    else:
+        from_param = (fov is None and resolution_param is not None
+                      and _is_number(resolution_param))
+        fov = DEFAULT_FOV if fov is None else fov
+        increment = (math.radians(float(resolution_param)) if from_param
+                     else _increment_for(fov, beams))
+        angle_min = -0.5 * fov
+    usable = DEFAULT_MAX_RANGE if max_range is None else float(max_range)
+    sensor_max = stated_max_range(log)
+    if sensor_max is not None and sensor_max > 0:
+        usable = min(usable, sensor_max)
+    return SensorModel(angle_min=angle_min, angle_increment=increment, max_range=usable,
+                       range_min=range_min)
+
+
+def _increment_for(fov: float, beams: int) -> float:
+    if fov <= 0 or fov > 2 * math.pi + 1e-9:
+        raise ValueError(f'field of view must be in (0, 2 pi], got {fov}')
+    if beams < 2:
+        raise ValueError(f'a scan needs at least 2 beams, got {beams}')
+    full_circle = fov >= 2 * math.pi - 1e-9
+    return fov / beams if full_circle or beams % 2 == 0 else fov / (beams - 1)

@@ -1,0 +1,72 @@
+"""The map's DiagnosticStatus: an honest level and the figures behind it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+STATUS_NAME = 'map_consistency: map'
+
+
+@dataclass(frozen=True)
+class MonitorHealth:
+    """What the node knows about its map and inputs at one instant."""
+
+    keyframes: int
+    buffered_scans: int
+    overlapping_pairs: int
+    tested_pairs: int
+    failed_pairs: int
+    inconsistent_scans: int
+    unmatched_poses: int
+    consistent: bool | None  # None before the first verdict
+    update_latency: float | None  # seconds of the last update that changed the map
+    phi: float | None  # tuned DCS Phi, None before a retune
+    input_problems: int  # bad messages since start
+    recent_problem: str  # the last bad message if it is recent, else ''
+    seconds_since_input: float | None  # None when nothing arrived yet
+    stale_timeout: float
+
+
+def status_level(health: MonitorHealth) -> tuple[bytes, str]:
+    """(level, message): STALE without recent input, ERROR for an inconsistent map, WARN for
+    no verdict yet or a recent bad message, OK otherwise."""
+    if health.seconds_since_input is None:
+        return DiagnosticStatus.STALE, 'no scan or trajectory received yet'
+    if health.seconds_since_input > health.stale_timeout:
+        return DiagnosticStatus.STALE, (f'no input for {health.seconds_since_input:.1f} s '
+                                        f'(stale after {health.stale_timeout:g} s)')
+    if health.consistent is False:
+        return DiagnosticStatus.ERROR, (f'map inconsistent: {health.inconsistent_scans} of '
+                                        f'{health.keyframes} scans fail')
+    if health.consistent is None:
+        return DiagnosticStatus.WARN, 'no keyframe yet: no trajectory pose matches a scan'
+    if health.recent_problem:
+        return DiagnosticStatus.WARN, f'map consistent; bad input: {health.recent_problem}'
+    return DiagnosticStatus.OK, f'map consistent ({health.keyframes} scans)'
+
+
+def _optional(value: float | None, scale: float = 1.0, digits: int = 3) -> str:
+    return 'n/a' if value is None else f'{value * scale:.{digits}f}'
+
+
+def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
+    """The DiagnosticStatus of the map with the design's key-values."""
+    level, message = status_level(health)
+    values = {
+        'scans': str(health.keyframes),
+        'buffered scans': str(health.buffered_scans),
+        'overlapping pairs': str(health.overlapping_pairs),
+        'tested pairs': str(health.tested_pairs),
+        'failed pairs': str(health.failed_pairs),
+        'inconsistent scans': str(health.inconsistent_scans),
+        'unmatched poses': str(health.unmatched_poses),
+        'update latency (ms)': _optional(health.update_latency, 1e3, 1),
+        'phi': _optional(health.phi, digits=6),
+        'input problems': str(health.input_problems),
+        'last input problem': health.recent_problem or 'none',
+        'seconds since input': _optional(health.seconds_since_input, digits=1),
+    }
+    return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
+                            hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in values.items()])

@@ -1,0 +1,105 @@
+"""`map-consistency check`: exit codes, outputs, and bad input without tracebacks."""
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from map_consistency_ros.cli.main import main
+
+
+def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    report, plot, pairs = tmp_path / 'r.json', tmp_path / 'map.png', tmp_path / 'pairs.csv'
+    code = main(['check', str(path), '--quiet', '--report', str(report), '--plot', str(plot),
+                 '--pairs-csv', str(pairs)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert 'CONSISTENT' in out and 'scans                 40' in out
+    data = json.loads(report.read_text())
+    assert data['verdict'] == 'consistent'
+    assert data['sensor_model']['angle_min'] == pytest.approx(-np.pi / 2)
+    assert data['sensor_model']['angle_increment'] == pytest.approx(np.pi / 180)
+    assert data['sensor_model']['max_range'] == 8.0 and data['sensor_model']['range_min'] == 0.0
+    assert data['parameters']['alpha'] == 0.01
+    assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    rows = list(csv.DictReader(pairs.open()))
+    assert rows and set(rows[0]) == {'i', 'j', 'M_ij', 'n_ij', 'psi_ij', 'failed'}
+    assert all(int(row['n_ij']) > 0 for row in rows)
+    assert data['summary']['overlapping_pairs'] == len(rows)
+
+
+def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
+    path, _, _ = room_log(poses)
+    # Rewrite the logged poses of the second half as if SLAM had put them 0.4 m off.
+    lines = path.read_text().splitlines()
+    shifted = []
+    for index, line in enumerate(lines):
+        tokens = line.split()
+        if index >= 20:
+            for slot in (182, 185):
+                tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
+        shifted.append(' '.join(tokens))
+    path.write_text('\n'.join(shifted) + '\n')
+    explain = tmp_path / 'pairs.png'
+    code = main(['check', str(path), '--quiet', '--explain', str(explain)])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert 'INCONSISTENT' in out and 'flagged scan indices' in out
+    assert explain.read_bytes()[:4] == b'\x89PNG'
+
+
+def test_alpha_option_reaches_the_report(room_log, tmp_path):
+    path, _, _ = room_log()
+    report = tmp_path / 'r.json'
+    main(['check', str(path), '--quiet', '--alpha', '0.2', '--fov', '180', '--max-range', '6',
+          '--report', str(report)])
+    data = json.loads(report.read_text())
+    assert data['parameters']['alpha'] == 0.2
+    assert data['sensor_model']['max_range'] == 6.0
+
+
+@pytest.mark.parametrize('content,message', [
+    ('FLASER 3 1.0 2.0\n', 'bad.log:1: truncated FLASER record'),
+    ('FLASER 3 1.0 x 3.0 0 0 0 0 0 0 1 h 1\n', "bad.log:1: non-numeric range 'x'"),
+    ('', 'bad.log: no FLASER or ROBOTLASER1'),
+])
+def test_bad_logs_exit_2_with_one_line(tmp_path, capsys, content, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(content)
+    assert main(['check', str(path), '--quiet']) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+
+
+def test_missing_file_and_bad_option_exit_2(tmp_path, room_log, capsys):
+    assert main(['check', str(tmp_path / 'absent.log')]) == 2
+    assert 'absent.log: no such file' in capsys.readouterr().err
+    path, _, _ = room_log()
+    assert main(['check', str(path), '--alpha', '1.5']) == 2
+    assert 'alpha must be in (0, 1)' in capsys.readouterr().err
+
+
+def test_console_script_prints_no_traceback(tmp_path):
+    path = tmp_path / 'bad.log'
+    path.write_text('FLASER 3 1.0 2.0\n')
+    done = subprocess.run([sys.executable, '-m', 'map_consistency_ros.cli.main', 'check',
+                           str(path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert 'Traceback' not in done.stderr and 'truncated FLASER' in done.stderr
+
+
+def test_every_keeps_record_positions_in_outputs(room_log, tmp_path):
+    path, _, _ = room_log()
+    report, pairs = tmp_path / 'r.json', tmp_path / 'pairs.csv'
+    assert main(['check', str(path), '--quiet', '--every', '3', '--report', str(report),
+                 '--pairs-csv', str(pairs)]) == 0
+    data = json.loads(report.read_text())
+    assert data['scans']['id'] == list(range(0, 40, 3)) and data['every'] == 3
+    ids = {int(row[key]) for row in csv.DictReader(pairs.open()) for key in ('i', 'j')}
+    assert ids and all(index % 3 == 0 for index in ids)
+    assert main(['check', str(path), '--every', '0']) == 2

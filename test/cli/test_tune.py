@@ -1,0 +1,96 @@
+"""`map-consistency tune`: the three input forms, outputs, exit codes and bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from map_consistency_ros.cli.main import main
+from map_consistency_ros.io.g2o import read_g2o, write_g2o
+
+FAST = ['--grid-steps', '3', '--tolerance', '2', '--iterations', '30', '--quiet']
+
+
+@pytest.fixture(scope='module')
+def built(shared_data, tmp_path_factory):
+    """`tune --build` on every 30th Intel scan with false loops: its exit code, outputs, graph."""
+    out = tmp_path_factory.mktemp('tune')
+    intel = shared_data / 'intel'
+    code = main(['tune', '--build', str(intel / 'intel.gfs.log'), str(intel / 'intel.relations'),
+                 str(intel / 'intel.orig.bag'), '--stride', '30', '--false-loops', '5',
+                 '--save-graph', str(out / 'graph.g2o'), '--report', str(out / 'tune.json'),
+                 '--profile-plot', str(out / 'profile.png'), '--maps-plot',
+                 str(out / 'maps.png'), *FAST])
+    return code, out
+
+
+def test_build_form_writes_graph_report_and_figures(built):
+    code, out = built
+    report = json.loads((out / 'tune.json').read_text())
+    assert code == (0 if report['verdict'] == 'consistent' else 1)
+    profile = report['profile']
+    best = int(np.argmin(profile['average_inconsistency']))
+    assert report['phi'] == pytest.approx(profile['phi'][best])
+    assert report['average_inconsistency'] == pytest.approx(profile['average_inconsistency'][best])
+    assert len(report['poses']) == read_g2o(out / 'graph.g2o').graph.vertex_count == 31
+    assert 'average_inconsistency' in report['baseline_phi_1']
+    for figure in ('profile.png', 'maps.png'):
+        assert (out / figure).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_graph_form_gives_the_same_answer_as_the_build_form(built, capsys):
+    _, out = built
+    code = main(['tune', str(out / 'graph.g2o'), '--report', str(out / 'again.json'), *FAST])
+    first = json.loads((out / 'tune.json').read_text())
+    again = json.loads((out / 'again.json').read_text())
+    assert again['phi'] == pytest.approx(first['phi'], rel=1e-12)
+    np.testing.assert_allclose(again['poses'], first['poses'], atol=1e-9)
+    assert code == (0 if again['verdict'] == 'consistent' else 1)
+    printed = capsys.readouterr().out
+    assert 'Phi* =' in printed and 'M(1)' in printed
+
+
+def test_scans_form_takes_the_scans_from_a_carmen_log(built, tmp_path):
+    _, out = built
+    content = read_g2o(out / 'graph.g2o')
+    log = tmp_path / 'scans.log'
+    lines = []
+    for ranges, pose, stamp in zip(content.laser.ranges, content.laser.robot_poses,
+                                   content.laser.timestamps):
+        values = ' '.join(f'{value:g}' for value in ranges)
+        pose_text = ' '.join(f'{value:.9f}' for value in pose)
+        lines.append(f'FLASER {len(ranges)} {values} {pose_text} {pose_text} {stamp} h {stamp}')
+    log.write_text('\n'.join(lines) + '\n')
+    bare = tmp_path / 'bare.g2o'
+    write_g2o(bare, type(content)(graph=content.graph, vertex_ids=content.vertex_ids))
+    code = main(['tune', str(bare), '--scans', str(log), '--report', str(tmp_path / 'r.json'),
+                 *FAST])
+    report = json.loads((tmp_path / 'r.json').read_text())
+    assert code in (0, 1) and len(report['poses']) == 31
+
+
+@pytest.mark.parametrize('arguments, message', [
+    ([], 'give either GRAPH or --build'),
+    (['--grid-steps', '1'], 'grid_steps must be at least 3'),
+])
+def test_bad_arguments_exit_2(built, capsys, arguments, message):
+    _, out = built
+    graph = [] if not arguments else [str(out / 'graph.g2o')]
+    assert main(['tune', *graph, *arguments]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_graph_without_scans_or_with_a_wrong_log_exits_2(built, tmp_path, capsys):
+    _, out = built
+    content = read_g2o(out / 'graph.g2o')
+    bare = tmp_path / 'bare.g2o'
+    write_g2o(bare, type(content)(graph=content.graph, vertex_ids=content.vertex_ids))
+    assert main(['tune', str(bare), *FAST]) == 2
+    assert 'no ROBOTLASER1 lines' in capsys.readouterr().err
+    log = tmp_path / 'one.log'
+    log.write_text('FLASER 3 1 1 1 0 0 0 0 0 0 1.0 h 1.0\n')
+    assert main(['tune', str(bare), '--scans', str(log), *FAST]) == 2
+    assert '1 laser records for 31 vertices' in capsys.readouterr().err
+    broken = tmp_path / 'broken.g2o'
+    broken.write_text('VERTEX_SE2 0 0 0\n')
+    assert main(['tune', str(broken), *FAST]) == 2
+    assert f'{broken}:1: VERTEX_SE2 needs 4 fields' in capsys.readouterr().err

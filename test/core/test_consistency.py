@@ -1,0 +1,175 @@
+"""The test's decisions: synthetic pair measures with known answers, then real maps."""
+import numpy as np
+import pytest
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.consistency import (
+    ConsistencyParameters, average_inconsistency, check_consistency, evaluate_pairs,
+    local_pairs, local_scales)
+from map_consistency_ros.core.measure import PairMeasures
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.io import carmen
+
+NO_TRIM = ConsistencyParameters(trim_largest=0)
+
+
+def _measures(pairs, samples, keep=10):
+    """PairMeasures of pairs whose inconsistency distances are `samples` (one array per pair)."""
+    largest = np.zeros((len(pairs), keep))
+    for row, values in enumerate(samples):
+        top = np.sort(values)[::-1][:keep]
+        largest[row, :top.size] = top
+    return PairMeasures(pairs=np.array(pairs, dtype=np.int64),
+                        distance_sum=np.array([values.sum() for values in samples]),
+                        point_count=np.array([values.size for values in samples]),
+                        largest=largest)
+
+
+def _ring_of_pairs(scan_count, reach):
+    return [(i, j) for i in range(scan_count) for j in range(i + 1, min(i + reach + 1, scan_count))]
+
+
+def test_half_normal_pairs_pass_and_an_inflated_scan_fails():
+    rng = np.random.default_rng(7)
+    scale = 0.02
+    pairs = _ring_of_pairs(30, 8)
+    samples = [np.abs(rng.normal(0, scale, 60)) for _ in pairs]
+    scales = np.full(30, scale)
+    result = evaluate_pairs(_measures(pairs, samples), scales, 30, NO_TRIM)
+    assert result.consistent
+    assert result.tested.all()
+    # Scan 12 is displaced: its pairs see distances four times the noise.
+    bad = [index for index, pair in enumerate(pairs) if 12 in pair]
+    for index in bad:
+        samples[index] = np.abs(rng.normal(0, 4 * scale, 60))
+    result = evaluate_pairs(_measures(pairs, samples), scales, 30, NO_TRIM)
+    assert not result.consistent
+    assert 12 in result.inconsistent_scans
+    assert result.failed[bad].all()
+    assert result.overlap_counts[12] == 16 and result.failed_counts[12] == 16
+    assert result.critical_counts[12] < 16
+
+
+def test_pair_test_uses_the_larger_scale_and_the_normal_quantile():
+    values = np.full(40, 0.05)
+    measures = _measures([(0, 1)], [values])
+    # Psi with s = 0.05 (scan 1's scale) is negative, with s = 0.01 it is huge.
+    passes = evaluate_pairs(measures, np.array([0.01, 0.05]), 2, NO_TRIM)
+    assert not passes.failed[0]
+    fails = evaluate_pairs(measures, np.array([0.01, 0.01]), 2, NO_TRIM)
+    assert fails.failed[0]
+
+
+def test_pairs_with_too_few_points_are_not_tested():
+    measures = _measures([(0, 1), (1, 2)], [np.full(5, 1.0), np.full(30, 0.001)])
+    result = evaluate_pairs(measures, np.full(3, 0.01), 3, NO_TRIM)
+    np.testing.assert_array_equal(result.tested, [False, True])
+    assert np.isnan(result.statistic[0]) and not result.failed[0]
+    np.testing.assert_array_equal(result.overlap_counts, [0, 1, 1])
+
+
+def test_trimming_drops_the_largest_distances():
+    values = np.concatenate([np.full(30, 0.01), np.full(3, 5.0)])
+    measures = _measures([(0, 1)], [values], keep=5)
+    untrimmed = evaluate_pairs(measures, np.full(2, 0.01), 2, NO_TRIM)
+    trimmed = evaluate_pairs(measures, np.full(2, 0.01), 2,
+                             ConsistencyParameters(trim_largest=3))
+    assert untrimmed.failed[0] and not trimmed.failed[0]
+    with pytest.raises(ValueError, match='trimming needs 10'):
+        evaluate_pairs(measures, np.full(2, 0.01), 2, ConsistencyParameters(trim_largest=10))
+
+
+def test_local_scales_follow_eq_10():
+    measures = _measures([(0, 1), (1, 2)], [np.full(50, 0.02), np.full(50, 0.04)])
+    parameters = ConsistencyParameters(trim_largest=0, default_scale=0.5)
+    scales = local_scales(measures, 4, parameters)
+    # Each scan takes the largest bound of its pairs; scan 3 has none and gets the default.
+    assert scales[1] == pytest.approx(scales[2]) and scales[1] > scales[0]
+    assert scales[3] == 0.5
+    # At that scale the local pair sits exactly on the local test's threshold.
+    on_edge = evaluate_pairs(measures, scales[:3].copy().clip(min=scales[0]), 3,
+                             ConsistencyParameters(trim_largest=0, alpha=0.05))
+    assert not on_edge.failed.any()
+    floored = local_scales(measures, 4, ConsistencyParameters(trim_largest=0, min_scale=1.0))
+    np.testing.assert_array_equal(floored, 1.0)
+
+
+def test_flag_window_removes_isolated_flags():
+    rng = np.random.default_rng(3)
+    pairs = _ring_of_pairs(40, 6)
+    samples = [np.abs(rng.normal(0, 0.02 if not ({5, 20, 21} & set(pair)) else 0.2, 60))
+               for pair in pairs]
+    measures = _measures(pairs, samples)
+    raw = evaluate_pairs(measures, np.full(40, 0.02), 40, NO_TRIM)
+    filtered = evaluate_pairs(measures, np.full(40, 0.02), 40,
+                              ConsistencyParameters(trim_largest=0, flag_window=1))
+    assert {5, 20, 21} <= set(raw.inconsistent_scans)
+    assert 5 not in filtered.inconsistent_scans and {20, 21} <= set(filtered.inconsistent_scans)
+
+
+@pytest.mark.parametrize('field,value', [
+    ('alpha', 0.0), ('binomial_alpha', 1.0), ('failure_probability', -0.1),
+    ('local_window', -1), ('min_points', 0), ('default_scale', 0.0)])
+def test_parameters_reject_bad_values(field, value):
+    with pytest.raises(ValueError, match=field):
+        ConsistencyParameters(**{field: value})
+
+
+def test_average_inconsistency_counts_overlapping_pairs_only():
+    measures = _measures([(0, 1), (1, 2), (2, 3)],
+                         [np.array([1.0, 2.0]), np.array([]), np.array([4.0])])
+    assert average_inconsistency(measures) == pytest.approx(3.5)
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    return ScanSet.from_ranges(log.ranges, log.laser_poses, carmen.sensor_model(log))
+
+
+def test_local_pairs_are_temporal_neighbours(intel):
+    pairs = local_pairs(intel, 20)
+    gaps = pairs[:, 1] - pairs[:, 0]
+    assert gaps.min() == 1 and gaps.max() == 10
+    assert len(pairs) > 0.9 * 10 * 900
+
+
+def _displaced(scans, cut, shift=0.3, degrees=2.0):
+    """The map with every pose from `cut` on rotated about pose `cut` and shifted."""
+    poses = scans.sensor_poses.copy()
+    pivot = poses[cut]
+    tail = se2.relative(pivot, poses[cut:])
+    poses[cut:] = se2.compose(se2.compose(pivot, np.array([shift, 0.0, np.radians(degrees)])),
+                              tail)
+    return scans.with_poses(poses)
+
+
+def test_intel_corrected_map_and_its_displaced_version(intel):
+    corrected = check_consistency(intel)
+    displaced = check_consistency(_displaced(intel, 450), reference_scans=intel)
+    # Temporal neighbours fit the scales, so they pass by construction.
+    gap = np.abs(corrected.pairs[:, 1] - corrected.pairs[:, 0])
+    assert not corrected.failed[gap <= 20].any()
+    # The corrected map is not flawless (see README: doors and people in the Intel lab),
+    # but a rigid 2 degree / 0.3 m displacement of half the run multiplies the failures.
+    corrected_rate = corrected.failed_pair_count / corrected.tested_pair_count
+    displaced_rate = displaced.failed_pair_count / displaced.tested_pair_count
+    assert corrected_rate < 0.05
+    assert displaced_rate > 5 * corrected_rate
+    assert not displaced.consistent
+    assert displaced.inconsistent.sum() > 3 * corrected.inconsistent.sum()
+    # Pairs across the seam fail, pairs within one rigid half keep their verdicts.
+    def seam(result):
+        return (result.pairs[:, 0] < 450) & (result.pairs[:, 1] >= 450)
+
+    assert displaced.failed[seam(displaced)].mean() > 0.2
+    within_displaced = displaced.failed[~seam(displaced)].mean()
+    assert within_displaced < 2 * corrected.failed[~seam(corrected)].mean() + 0.01
+
+
+def test_map_as_its_own_reference_reuses_the_candidate_measures(intel):
+    part = intel.with_poses(intel.sensor_poses)
+    implicit = check_consistency(part)
+    explicit = check_consistency(part, reference_scans=intel)
+    np.testing.assert_array_equal(implicit.scales, explicit.scales)
+    np.testing.assert_array_equal(implicit.inconsistent, explicit.inconsistent)

@@ -1,0 +1,45 @@
+"""The map status: each level for the situation that calls for it, and the key-values."""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, status_level
+
+HEALTHY = MonitorHealth(keyframes=120, buffered_scans=3, overlapping_pairs=900, tested_pairs=700,
+                        failed_pairs=4, inconsistent_scans=0, unmatched_poses=1, consistent=True,
+                        update_latency=0.0042, phi=None, input_problems=0, recent_problem='',
+                        seconds_since_input=0.3, stale_timeout=5.0)
+
+
+@pytest.mark.parametrize('changes, level, words', [
+    ({}, DiagnosticStatus.OK, 'map consistent (120 scans)'),
+    ({'recent_problem': 'scan: empty'}, DiagnosticStatus.WARN, 'bad input: scan: empty'),
+    ({'consistent': None, 'keyframes': 0}, DiagnosticStatus.WARN, 'no keyframe yet'),
+    ({'consistent': False, 'inconsistent_scans': 7}, DiagnosticStatus.ERROR,
+     'map inconsistent: 7 of 120 scans fail'),
+    ({'consistent': False, 'seconds_since_input': 9.0}, DiagnosticStatus.STALE,
+     'no input for 9.0 s'),
+    ({'seconds_since_input': None, 'consistent': None}, DiagnosticStatus.STALE,
+     'no scan or trajectory received yet'),
+])
+def test_levels(changes, level, words):
+    got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
+    assert got_level == level
+    assert words in message
+
+
+def test_key_values_carry_the_figures():
+    status = map_status(dataclasses.replace(HEALTHY, phi=0.125, input_problems=2), '/mc')
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.hardware_id == '/mc' and status.level == DiagnosticStatus.OK
+    assert values['scans'] == '120' and values['overlapping pairs'] == '900'
+    assert values['failed pairs'] == '4' and values['inconsistent scans'] == '0'
+    assert values['update latency (ms)'] == '4.2'
+    assert values['phi'] == '0.125000'
+    assert values['input problems'] == '2' and values['last input problem'] == 'none'
+    unknown = {kv.key: kv.value for kv in map_status(
+        dataclasses.replace(HEALTHY, update_latency=None), '/mc').values}
+    assert unknown['update latency (ms)'] == 'n/a' and unknown['phi'] == 'n/a'

@@ -1,0 +1,56 @@
+"""Markers of a monitored Intel excerpt: stable ids, verdict colours, inconsistent points."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from visualization_msgs.msg import Marker
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.monitor import ConsistencyMonitor, inconsistent_endpoints
+from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+from map_consistency_ros.ros.markers import (CONSISTENT, INCONSISTENT, KEYFRAME_NAMESPACE,
+                                             POINTS_NAMESPACE, UNTESTED, consistency_markers)
+
+
+@pytest.fixture(scope='module')
+def snapshot(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
+    monitor = ConsistencyMonitor()
+    stamps, ranges, poses = log.timestamps[:80], log.ranges[:80], log.laser_poses[:80]
+    for stamp, scan in zip(stamps, ranges):
+        monitor.add_scan(stamp, scan, model)
+    monitor.update_trajectory(stamps, poses)
+    # a wrong loop closure drags the second half of the excerpt aside
+    displaced = poses.copy()
+    displaced[40:] = se2.compose(se2.compose(poses[40], np.array([0.3, 0.0, 0.05])),
+                                 se2.relative(poses[40], poses[40:]))
+    monitor.update_trajectory(stamps, displaced)
+    return monitor.snapshot()
+
+
+def test_one_marker_per_keyframe_coloured_by_verdict(snapshot):
+    result = snapshot.result
+    assert result.inconsistent.any() and not result.inconsistent.all()
+    points = inconsistent_endpoints(snapshot.scans(), result)
+    array = consistency_markers(snapshot, points, 'map', Time(sec=5))
+    keyframes = [m for m in array.markers if m.ns == KEYFRAME_NAMESPACE]
+    assert [m.id for m in keyframes] == snapshot.ids.tolist()
+    for marker, pose, bad, tested in zip(keyframes, snapshot.poses, result.inconsistent,
+                                         result.overlap_counts):
+        assert marker.header.frame_id == 'map' and marker.header.stamp.sec == 5
+        assert (marker.pose.position.x, marker.pose.position.y) == pytest.approx(pose[:2])
+        yaw = 2 * np.arctan2(marker.pose.orientation.z, marker.pose.orientation.w)
+        assert np.angle(np.exp(1j * (yaw - pose[2]))) == pytest.approx(0.0, abs=1e-9)
+        expected = INCONSISTENT if bad else CONSISTENT if tested else UNTESTED
+        assert marker.color == expected
+    [cloud] = [m for m in array.markers if m.ns == POINTS_NAMESPACE]
+    assert cloud.type == Marker.POINTS and cloud.action == Marker.ADD
+    np.testing.assert_allclose([(p.x, p.y) for p in cloud.points], points)
+
+
+def test_no_inconsistent_points_deletes_the_cloud(snapshot):
+    array = consistency_markers(snapshot, np.zeros((0, 2)), 'map', Time())
+    [cloud] = [m for m in array.markers if m.ns == POINTS_NAMESPACE]
+    assert cloud.action == Marker.DELETE and not cloud.points

@@ -1,0 +1,378 @@
+"""The node in its own process, driven over DDS with real Intel scans and trajectories.
+
+One node process serves the whole module (start-up dominates the cost); the tests run in
+order on its state: a consistent map, bad input, a wrong loop closure, the services, STALE.
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path as FilePath
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from nav_msgs.msg import Path
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import Bool, Float64, Float64MultiArray, String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+from map_consistency_ros.ros import conversions
+from map_consistency_ros.ros.diagnostics import STATUS_NAME
+from map_consistency_ros.ros.markers import KEYFRAME_NAMESPACE, POINTS_NAMESPACE
+from map_consistency_ros.ros.node import PARAMETERS
+
+REPO = FilePath(__file__).resolve().parents[2]
+SCANS = 80  # the first 80 Intel scans form a consistent map at the logged poses
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TIMEOUT = 20.0
+
+
+def _wait(predicate, timeout: float = TIMEOUT, what: str = 'condition'):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+
+
+class Probe:
+    """A test-side node: publishes inputs, records the node's outputs."""
+
+    def __init__(self, context: Context) -> None:
+        self.node = Node('probe', context=context)
+        self.scan = self.node.create_publisher(LaserScan, 'scan', 100)
+        self.trajectory = self.node.create_publisher(Path, 'trajectory', 10)
+        self.constraints = self.node.create_publisher(Float64MultiArray, 'constraints', 10)
+        self.markers: list[MarkerArray] = []
+        self.diagnostics: list[DiagnosticStatus] = []
+        self.diagnostics_arrivals: list[float] = []
+        self.call_window = (0.0, 0.0)
+        self.consistent: list[bool] = []
+        self.reports: list[str] = []
+        self.phi: list[float] = []
+        self.optimized: list[Path] = []
+        node_ns = '/map_consistency/'
+        self.node.create_subscription(MarkerArray, node_ns + 'markers', self.markers.append, 10)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
+        self.node.create_subscription(Bool, node_ns + 'consistent',
+                                      lambda m: self.consistent.append(m.data), LATCHED)
+        self.node.create_subscription(String, node_ns + 'report',
+                                      lambda m: self.reports.append(m.data), LATCHED)
+        self.node.create_subscription(Float64, node_ns + 'tuned_phi',
+                                      lambda m: self.phi.append(m.data), LATCHED)
+        self.node.create_subscription(Path, node_ns + 'optimized_trajectory',
+                                      self.optimized.append, LATCHED)
+        self.check = self.node.create_client(Trigger, node_ns + 'check')
+        self.retune = self.node.create_client(Trigger, node_ns + 'retune_dcs')
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.diagnostics.extend(s for s in msg.status if s.name == STATUS_NAME)
+        self.diagnostics_arrivals.append(time.monotonic())
+
+    def latest_status(self) -> DiagnosticStatus | None:
+        return self.diagnostics[-1] if self.diagnostics else None
+
+    def status_value(self, key: str) -> str | None:
+        status = self.latest_status()
+        values = {} if status is None else {kv.key: kv.value for kv in status.values}
+        return values.get(key)
+
+    def call(self, client, timeout: float = 60.0) -> Trigger.Response:
+        assert client.wait_for_service(timeout_sec=TIMEOUT), 'service not offered'
+        start = time.monotonic()
+        future = client.call_async(Trigger.Request())
+        _wait(future.done, timeout, 'service response')
+        self.call_window = (start, time.monotonic())
+        return future.result()
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    return log, sensor_model(log)
+
+
+@pytest.fixture(scope='module')
+def ros_env(tmp_path_factory):
+    """Isolated DDS domain and log folder for this module, for both processes."""
+    saved = {key: os.environ.get(key) for key in
+             ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOG_DIR')}
+    os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 200))
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ['ROS_LOG_DIR'] = str(tmp_path_factory.mktemp('ros_log'))
+    yield dict(os.environ)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+@pytest.fixture(scope='module')
+def node_process(ros_env):
+    command = [sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
+               '--params-file', str(REPO / 'config' / 'map_consistency.yaml'),
+               '-p', 'stale_timeout:=4.0', '-p', 'diagnostics_period:=0.2',
+               '-p', 'grid_steps:=12']
+    # a file, not a pipe: nobody reads the node's output until the end
+    log_path = FilePath(ros_env['ROS_LOG_DIR']) / 'node_output.txt'
+    with open(log_path, 'w') as output:
+        process = subprocess.Popen(command, cwd=REPO, env=ros_env, stdout=output,
+                                   stderr=subprocess.STDOUT, text=True)
+        yield process
+        if process.poll() is None:
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+    print(log_path.read_text()[-4000:])  # shown by pytest when a test failed
+
+
+@pytest.fixture(scope='module')
+def probe(node_process):
+    context = Context()
+    rclpy.init(context=context)
+    probe = Probe(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(probe.node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    _wait(lambda: probe.trajectory.get_subscription_count() > 0
+          and probe.scan.get_subscription_count() > 0, what='the node to subscribe')
+    yield probe
+    executor.shutdown()
+    probe.node.destroy_node()
+    rclpy.shutdown(context=context)
+    spinner.join(timeout=5)
+
+
+def _publish_scans(probe: Probe, log, model, indices) -> None:
+    for index in indices:
+        probe.scan.publish(conversions.numpy_to_scan(log.timestamps[index], log.ranges[index],
+                                                     model))
+        time.sleep(0.004)  # a paced stream, as a laser driver publishes
+
+
+def _publish_path(probe: Probe, stamps, poses) -> None:
+    probe.trajectory.publish(conversions.numpy_to_path(stamps, poses, 'map'))
+
+
+def _keyframe_markers(array: MarkerArray) -> list[Marker]:
+    return [m for m in array.markers if m.ns == KEYFRAME_NAMESPACE]
+
+
+def _wrong_loop_closure(poses: np.ndarray, start: int, amount: float = 1.0) -> np.ndarray:
+    """Poses from `start` on moved rigidly, as a false loop closure would drag them."""
+    moved = poses.copy()
+    pivot = poses[start]
+    shifted = se2.compose(pivot, amount * np.array([0.3, 0.0, 0.05]))
+    moved[start:] = se2.compose(shifted, se2.relative(pivot, poses[start:]))
+    return moved
+
+
+def test_config_file_holds_every_parameter_at_its_default():
+    config = yaml.safe_load((REPO / 'config' / 'map_consistency.yaml').read_text())
+    values = config['/**']['ros__parameters']
+    assert values.keys() == PARAMETERS.keys()
+    for name, (default, _, _) in PARAMETERS.items():
+        assert values[name] == default, name
+
+
+def test_a_parameter_out_of_range_ends_the_node_with_one_line(ros_env):
+    done = subprocess.run([sys.executable, '-m', 'map_consistency_ros.ros', '--ros-args', '-p',
+                           'alpha:=0.7'], cwd=REPO, env=ros_env, capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2
+    assert 'bad parameter' in done.stderr and 'alpha' in done.stderr
+    assert 'Traceback' not in done.stderr
+
+
+def test_before_any_input_the_node_is_stale_and_has_nothing_to_check(probe):
+    status = _wait(probe.latest_status, what='a first status')
+    assert status.level == DiagnosticStatus.STALE
+    assert status.message == 'no scan or trajectory received yet'
+    response = probe.call(probe.check)
+    assert not response.success
+    assert response.message.startswith('no keyframes yet')
+
+
+def test_consistent_map_from_late_and_early_scans(probe, intel):
+    log, model = intel
+    oracle = check_consistency(ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS],
+                                                   model))
+    assert oracle.consistent, 'precondition: the Intel excerpt is consistent offline'
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    # Poses 40..49 arrive before their scans, 50..79 after: both orders must register.
+    _publish_scans(probe, log, model, range(40))
+    _publish_path(probe, stamps[:50], poses[:50])
+    _wait(lambda: probe.status_value('unmatched poses') == '10', what='10 poses awaiting scans')
+    _publish_scans(probe, log, model, range(40, SCANS))
+    _publish_path(probe, stamps, poses)
+    _wait(lambda: probe.status_value('scans') == str(SCANS), what=f'{SCANS} keyframes')
+    _wait(lambda: probe.consistent and probe.consistent[-1] is True, what='consistent = true')
+    status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.OK and s,
+                   what='diagnostics OK')
+    values = {kv.key: kv.value for kv in status.values}
+    assert values['inconsistent scans'] == '0'
+    assert values['overlapping pairs'] == str(oracle.overlapping_pair_count)
+    assert values['tested pairs'] == str(oracle.tested_pair_count)
+    markers = _wait(lambda: probe.markers and len(_keyframe_markers(probe.markers[-1])) == SCANS
+                    and probe.markers[-1], what='a marker per keyframe')
+    keyframes = _keyframe_markers(markers)
+    assert sorted(m.id for m in keyframes) == list(range(SCANS))
+    assert all(m.color.g > m.color.r for m in keyframes if m.id < SCANS)
+
+
+def test_bad_input_warns_without_losing_state(probe, intel):
+    log, model = intel
+    problems = int(probe.status_value('input problems'))
+    bad_angles = conversions.numpy_to_scan(1.0, log.ranges[0], model)
+    bad_angles.angle_increment = float('nan')
+    probe.scan.publish(bad_angles)
+    short = conversions.numpy_to_scan(2.0, log.ranges[0], model)
+    short.ranges = short.ranges[:90]  # angle fields say 180 beams
+    probe.scan.publish(short)
+    probe.scan.publish(conversions.numpy_to_scan(3.0, np.zeros(0), model))
+    other_model = conversions.numpy_to_scan(4.0, log.ranges[0, :90], model)  # 90 beams
+    probe.scan.publish(other_model)
+    nan_scan = conversions.numpy_to_scan(5.0, np.full(log.ranges.shape[1], np.nan), model)
+    probe.scan.publish(nan_scan)  # valid: every beam is free space
+    broken = conversions.numpy_to_path(log.timestamps[:2], log.laser_poses[:2], 'map')
+    broken.poses[1].pose.orientation.w = 0.0
+    broken.poses[1].pose.orientation.z = 0.0
+    probe.trajectory.publish(broken)
+    malformed = Float64MultiArray(data=[1.0, 2.0, 3.0])
+    probe.constraints.publish(malformed)
+    _wait(lambda: int(probe.status_value('input problems')) >= problems + 6,
+          what='six bad messages counted')
+    status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.WARN
+                   and s, what='diagnostics WARN')
+    assert 'bad input' in status.message
+    assert probe.status_value('scans') == str(SCANS)
+    assert node_alive(probe)
+
+
+def node_alive(probe: Probe) -> bool:
+    return probe.check.wait_for_service(timeout_sec=TIMEOUT)
+
+
+def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
+    log, model = intel
+    stamps = log.timestamps[:SCANS]
+    poses = _wrong_loop_closure(log.laser_poses[:SCANS], 50)
+    oracle = check_consistency(
+        ScanSet.from_ranges(log.ranges[:SCANS], poses, model),
+        reference_scans=ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS], model))
+    assert not oracle.consistent
+    # a burst, as an optimizer iterating: only the last estimate counts
+    for amount in np.linspace(0.1, 0.9, 9):
+        _publish_path(probe, stamps, _wrong_loop_closure(log.laser_poses[:SCANS], 50, amount))
+    _publish_path(probe, stamps, poses)
+    expected_red = np.flatnonzero(oracle.inconsistent).tolist()
+
+    def red_keyframes():
+        latest = probe.markers[-1] if probe.markers else None
+        if latest is None or not any(m.ns == POINTS_NAMESPACE and m.action == Marker.ADD
+                                     for m in latest.markers):
+            return None
+        return sorted(m.id for m in _keyframe_markers(latest) if m.color.r > m.color.g)
+
+    _wait(lambda: red_keyframes() == expected_red, what='red markers of the final estimate')
+    _wait(lambda: probe.status_value('inconsistent scans') == str(len(expected_red)),
+          what='the final count in the diagnostics')
+    status = probe.latest_status()
+    assert status.level == DiagnosticStatus.ERROR
+    assert status.message.startswith('map inconsistent')
+    assert probe.consistent[-1] is False
+    report = json.loads(probe.reports[-1])
+    assert report['consistent'] is False
+    assert report['inconsistent_stamps'] == pytest.approx(stamps[oracle.inconsistent].tolist())
+    assert len(probe.optimized) == 0
+
+
+def test_check_service_recomputes_everything(probe):
+    response = probe.call(probe.check)
+    assert response.success
+    assert response.message.startswith('INCONSISTENT')
+    assert probe.consistent[-1] is False
+
+
+def test_a_late_subscriber_gets_the_latched_verdict(probe):
+    late: list[bool] = []
+    subscription = probe.node.create_subscription(
+        Bool, '/map_consistency/consistent', lambda m: late.append(m.data), LATCHED)
+    try:
+        _wait(lambda: late, what='the transient-local verdict')
+        assert late[-1] is False
+    finally:
+        probe.node.destroy_subscription(subscription)
+
+
+def test_retune_without_a_graph_fails_clearly(probe):
+    response = probe.call(probe.retune)
+    assert not response.success
+    assert response.message.startswith('no pose graph to tune')
+
+
+def _constraint_rows(stamps, odometry_poses, loop_poses, loop):
+    """Odometry between consecutive keyframes and one loop closure measured on `loop_poses`."""
+    information = [100.0, 0.0, 0.0, 100.0, 0.0, 400.0]
+    rows = [[stamps[k], stamps[k + 1], *se2.relative(odometry_poses[k], odometry_poses[k + 1]),
+             *information] for k in range(len(stamps) - 1)]
+    i, j = loop
+    rows.append([stamps[i], stamps[j], *se2.relative(loop_poses[i], loop_poses[j]),
+                 *information])
+    return np.array(rows)
+
+
+def test_retune_rejects_the_wrong_loop_closure(probe, intel):
+    log, _ = intel
+    stamps, logged = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    displaced = _wrong_loop_closure(logged, 50)
+    probe.constraints.publish(conversions.numpy_to_constraints(
+        _constraint_rows(stamps, logged, displaced, (10, 70))))
+    response = _wait(lambda: (r := probe.call(probe.retune)).message.startswith('Phi*') and r,
+                     timeout=60.0, what='a retune on the published graph')
+    assert response.success
+    assert 'optimized map consistent' in response.message
+    start, end = probe.call_window
+    during = sum(start < t < end for t in probe.diagnostics_arrivals)
+    assert during >= int((end - start) / 0.2) // 2, 'the node kept publishing while tuning'
+    phi = _wait(lambda: probe.phi and probe.phi[-1], what='the tuned Phi')
+    assert 1e-6 <= phi <= 16.0
+    optimized = _wait(lambda: probe.optimized and probe.optimized[-1], what='optimized path')
+    optimized_stamps, optimized_poses = conversions.path_to_numpy(optimized)
+    np.testing.assert_allclose(optimized_stamps, stamps, atol=1e-6)
+    error_to_logged = np.linalg.norm(optimized_poses[:, :2] - logged[:, :2], axis=1).max()
+    error_to_displaced = np.linalg.norm(optimized_poses[:, :2] - displaced[:, :2], axis=1).max()
+    assert error_to_logged < 0.05 < error_to_displaced
+    _wait(lambda: probe.status_value('phi') == f'{phi:.6f}', what='Phi in the diagnostics')
+
+
+def test_diagnostics_turn_stale_when_inputs_stop(probe, node_process):
+    status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.STALE
+                   and s, what='diagnostics STALE')
+    assert status.message.startswith('no input for')
+    assert node_process.poll() is None
