@@ -68,7 +68,7 @@ class PoseGraph:
         """(N, 3) poses composed along the odometry edges from the first pose.
 
         This is the incremental solution: each pose is placed relative to its predecessor
-        by the odometry edge between them (inverted when it points backwards). A pose
+        by the first odometry edge between them (inverted when it points backwards). A pose
         without an odometry edge to its predecessor keeps its current estimate relative
         to that predecessor.
         """
@@ -76,9 +76,11 @@ class PoseGraph:
         odometry = ~self.is_loop_closure
         forward = odometry & (self.edge_to == self.edge_from + 1)
         backward = odometry & (self.edge_to == self.edge_from - 1)
-        # Later edges win where several connect the same pair; one is enough.
-        steps[self.edge_from[forward]] = self.measurements[forward]
+        # The first edge between a pair wins (fancy assignment keeps the last, hence reversed):
+        # graphs list odometry before any further sequential constraint.
+        forward, backward = np.flatnonzero(forward)[::-1], np.flatnonzero(backward)[::-1]
         steps[self.edge_to[backward]] = se2.inverse(self.measurements[backward])
+        steps[self.edge_from[forward]] = self.measurements[forward]
         return se2.chain(self.poses[0], steps)
 
 

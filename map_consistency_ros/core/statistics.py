@@ -70,10 +70,13 @@ def _log_binomial_pmf(successes: int, trials: int, log_p: float, log_q: float) -
 
 @njit(cache=True)
 def _critical_count(trials: int, log_p: float, log_q: float, log_alpha: float) -> int:
-    # Grow the upper tail P(X > nu) from nu = r downwards in log space; stop before it
-    # exceeds alpha'. Adding the smallest terms first keeps the sum accurate.
+    # Grow the upper tail P(X > nu) downwards in log space and stop before it exceeds alpha'.
+    # Adding the smallest terms first keeps the sum accurate. Above mean + 40 sd the binomial
+    # tail is below 1e-300, so the sum starts there rather than at r.
+    probability = math.exp(log_p)
+    spread = math.sqrt(trials * probability * (1.0 - probability))
+    critical = min(trials, int(trials * probability + 40.0 * spread) + 10)
     log_tail = -np.inf
-    critical = trials
     while critical > 0:
         term = _log_binomial_pmf(critical, trials, log_p, log_q)
         high = max(log_tail, term)
@@ -94,6 +97,22 @@ def _critical_counts(trials: np.ndarray, log_p: float, log_q: float,
     return out
 
 
+# nu-hat for r = 0, 1, ... per (p, alpha'), grown on demand: the live monitor asks every update.
+_CRITICAL_TABLES: dict[tuple[float, float], np.ndarray] = {}
+
+
+def _critical_table(size: int, probability: float, alpha: float) -> np.ndarray:
+    key = (probability, alpha)
+    table = _CRITICAL_TABLES.get(key, np.empty(0, dtype=np.int64))
+    if table.size < size:
+        grown = max(size, 2 * table.size)
+        extra = _critical_counts(np.arange(table.size, grown), math.log(probability),
+                                 math.log1p(-probability), math.log(alpha))
+        table = np.concatenate([table, extra])
+        _CRITICAL_TABLES[key] = table
+    return table
+
+
 def binomial_critical_count(trials: np.ndarray, probability: float, alpha: float) -> np.ndarray:
     """nu-hat of eq. 7 for each number of trials r: min nu with P(X > nu) <= alpha', X ~ B(r, p).
 
@@ -106,7 +125,6 @@ def binomial_critical_count(trials: np.ndarray, probability: float, alpha: float
     trials = np.asarray(trials, dtype=np.int64)
     if np.any(trials < 0):
         raise ValueError('the number of trials must not be negative')
-    unique, inverse = np.unique(trials.ravel(), return_inverse=True)
-    counts = _critical_counts(unique, math.log(probability), math.log1p(-probability),
-                              math.log(alpha))
-    return counts[inverse].reshape(trials.shape)
+    if trials.size == 0:
+        return np.zeros(trials.shape, dtype=np.int64)
+    return _critical_table(int(trials.max()) + 1, probability, alpha)[trials]

@@ -63,7 +63,8 @@ class CarmenLog:
         return int(self.ranges.shape[1])
 
 
-def _open_text(path: Path):
+def open_text(path: Path):
+    """A text stream of a plain or gzip-compressed file (told apart by its magic bytes)."""
     with open(path, 'rb') as probe:
         gzipped = probe.read(2) == b'\x1f\x8b'
     if gzipped:
@@ -71,7 +72,8 @@ def _open_text(path: Path):
     return open(path, encoding='utf-8', errors='replace')
 
 
-def _floats(tokens: list[str], source: str, line: int, what: str) -> np.ndarray:
+def parse_floats(tokens: list[str], source: str, line: int, what: str) -> np.ndarray:
+    """The tokens as float64; InputError names the first non-numeric one and the line."""
     try:
         values = np.array(tokens, dtype=np.float64)
     except ValueError:
@@ -104,33 +106,35 @@ def _need(tokens: list[str], length: int, source: str, line: int, record: str) -
                                  f'expected at least {length}', line)
 
 
-def _parse_flaser(tokens: list[str], source: str, line: int):
+def parse_flaser(tokens: list[str], source: str, line: int):
+    """(ranges, laser pose, robot pose, logger timestamp, None) of a FLASER record."""
     _need(tokens, 2, source, line, 'FLASER')
     beams = _count(tokens[1], source, line, 'FLASER beam count')
     _need(tokens, 2 + beams + _FLASER_TAIL, source, line, 'FLASER')
-    ranges = _floats(tokens[2:2 + beams], source, line, 'range')
+    ranges = parse_floats(tokens[2:2 + beams], source, line, 'range')
     tail = tokens[2 + beams:]
-    poses = _floats(tail[0:6], source, line, 'pose value')
-    timestamp = _floats([tail[8]], source, line, 'timestamp')[0]
+    poses = parse_floats(tail[0:6], source, line, 'pose value')
+    timestamp = parse_floats([tail[8]], source, line, 'timestamp')[0]
     return ranges, poses[0:3], poses[3:6], timestamp, None
 
 
-def _parse_robotlaser(tokens: list[str], source: str, line: int):
+def parse_robotlaser(tokens: list[str], source: str, line: int):
+    """(ranges, laser pose, robot pose, logger timestamp, LaserAngles) of a ROBOTLASER1 record."""
     _need(tokens, _ROBOTLASER_HEAD + 1, source, line, 'ROBOTLASER1')
-    head = _floats(tokens[2:7], source, line, 'laser parameter')
+    head = parse_floats(tokens[2:7], source, line, 'laser parameter')
     beams = _count(tokens[8], source, line, 'ROBOTLASER1 beam count')
     _need(tokens, 9 + beams + 1, source, line, 'ROBOTLASER1')
-    ranges = _floats(tokens[9:9 + beams], source, line, 'range')
+    ranges = parse_floats(tokens[9:9 + beams], source, line, 'range')
     remissions = _count(tokens[9 + beams], source, line, 'ROBOTLASER1 remission count')
     rest = tokens[10 + beams + remissions:]
     _need(tokens, 10 + beams + remissions + 14, source, line, 'ROBOTLASER1')
-    poses = _floats(rest[0:6], source, line, 'pose value')
-    timestamp = _floats([rest[13]], source, line, 'timestamp')[0]
+    poses = parse_floats(rest[0:6], source, line, 'pose value')
+    timestamp = parse_floats([rest[13]], source, line, 'timestamp')[0]
     angles = LaserAngles(start_angle=head[0], fov=head[1], resolution=head[2], max_range=head[3])
     return ranges, poses[0:3], poses[3:6], timestamp, angles
 
 
-_PARSERS = {'FLASER': _parse_flaser, 'ROBOTLASER1': _parse_robotlaser}
+_PARSERS = {'FLASER': parse_flaser, 'ROBOTLASER1': parse_robotlaser}
 
 
 def read_carmen_log(path: str | Path) -> CarmenLog:
@@ -147,7 +151,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
     stated: LaserAngles | None = None
     parameters: dict[str, str] = {}
     try:
-        with _open_text(path) as stream:
+        with open_text(path) as stream:
             for line_number, text in enumerate(stream, start=1):
                 tokens = text.split()
                 if not tokens or tokens[0].startswith('#'):

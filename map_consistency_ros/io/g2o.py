@@ -20,8 +20,8 @@ import numpy as np
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.posegraph import PoseGraph
-from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, _floats, _open_text,
-                                           _parse_robotlaser)
+from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, open_text, parse_floats,
+                                           parse_robotlaser)
 from map_consistency_ros.io.errors import InputError
 
 _UPPER = np.triu_indices(3)
@@ -77,7 +77,7 @@ def read_g2o(path: str | Path) -> G2oGraph:
         raise InputError(source, 'no such file')
     reader = _Reader(source)
     try:
-        with _open_text(path) as stream:
+        with open_text(path) as stream:
             for line_number, text in enumerate(stream, start=1):
                 tokens = text.split()
                 if tokens and not tokens[0].startswith('#'):
@@ -159,7 +159,7 @@ class _Reader:
         elif tag == 'ROBOTLASER1':
             if self.last_vertex is None:
                 raise InputError(self.source, 'ROBOTLASER1 before any VERTEX_SE2', line)
-            self.scans.append((self.last_vertex, _parse_robotlaser(tokens, self.source, line),
+            self.scans.append((self.last_vertex, parse_robotlaser(tokens, self.source, line),
                                line))
         else:
             raise InputError(self.source, f'unsupported record {tag!r}', line)
@@ -217,7 +217,7 @@ class _Reader:
                              self.edges[bad][3])
 
     def _finite(self, tokens: list[str], line: int, what: str) -> np.ndarray:
-        values = _floats(tokens, self.source, line, what)
+        values = parse_floats(tokens, self.source, line, what)
         if not np.all(np.isfinite(values)):
             raise InputError(self.source, f'{what} is not finite', line)
         return values

@@ -65,3 +65,10 @@ def test_arrays_are_read_only_and_with_poses_swaps_the_estimate():
 def test_malformed_graphs_are_refused(overrides, message):
     with pytest.raises(ValueError, match=message):
         _graph(**overrides)
+
+
+def test_odometry_chain_follows_the_first_of_parallel_sequential_edges():
+    first, second = [1.0, 0.0, 0.0], [5.0, 5.0, 1.0]
+    graph = PoseGraph(poses=np.zeros((2, 3)), edge_from=[0, 0, 1], edge_to=[1, 1, 0],
+                      measurements=[first, second, second], information=[np.eye(3)] * 3)
+    np.testing.assert_allclose(graph.odometry_chain()[1], first, atol=1e-12)
