@@ -40,7 +40,11 @@ def ensure_venv() -> None:
         return
     if not PYTHON.exists():
         import venv
-        venv.EnvBuilder(with_pip=True).create(VENV)
+        try:
+            venv.EnvBuilder(with_pip=True).create(VENV)
+        except (OSError, subprocess.CalledProcessError) as error:
+            sys.exit(f'bootstrap: cannot create {VENV} ({error}); on Debian or Ubuntu the venv '
+                     'module is the package python3-venv (apt install python3-venv)')
     install = [str(PYTHON), '-m', 'pip', 'install', '--disable-pip-version-check', '-q',
                '-c', str(ROOT / 'constraints.txt'), '-e', f'{ROOT}[ros,test]']
     if _run(install) != 0:
