@@ -55,8 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='zstd chunk compression (mcap only)')
     parser.add_argument('--limit', type=int, default=None, metavar='N',
                         help='convert only the first N laser records')
-    parser.add_argument('--fov', type=float, default=None, metavar='DEGREES',
-                        help='beam span written to the LaserScans, as in `check --fov`')
+    options.add_fov_argument(parser)
     parser.add_argument('--range-max', type=float, default=None, metavar='METRES',
                         help='LaserScan range_max where the log does not state the sensor maximum '
                              '(default: the largest reading in the log)')

@@ -44,11 +44,16 @@ def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--max-range', type=float, default=None, metavar='METRES',
                        help='usable range: longer readings count as free space up to it and are '
                             'not tested (default 8, capped by the maximum the log states)')
-    group.add_argument('--fov', type=float, default=None, metavar='DEGREES',
-                       help='field of view of logs that do not state their beam angles '
-                            '(default: PARAM laser_front_laser_resolution, else 180)')
+    add_fov_argument(group)
     group.add_argument('--range-min', type=float, default=0.0, metavar='METRES',
                        help='readings at or below this are invalid (default %(default)s)')
+
+
+def add_fov_argument(parser) -> None:
+    """--fov in degrees, for logs that do not state their beam angles (parser or group)."""
+    parser.add_argument('--fov', type=float, default=None, metavar='DEGREES',
+                        help='field of view of logs that do not state their beam angles '
+                             '(default: PARAM laser_front_laser_resolution, else 180)')
 
 
 def fov_radians(args: argparse.Namespace) -> float | None:
