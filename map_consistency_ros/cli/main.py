@@ -26,7 +26,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='map-consistency',
         description=__doc__.split('\n\n')[0],
-        epilog='Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input.',
+        epilog='Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input. '
+               'The live ROS 2 node is a separate command: map_consistency_node --ros-args '
+               '--params-file config/map_consistency.yaml (topics, services, parameters: '
+               'docs/node.md). Every subcommand takes --help.',
     )
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
