@@ -10,33 +10,13 @@ import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first
 import numpy as np  # noqa: E402
 
 from map_consistency_ros.core import statistics  # noqa: E402
-from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
+from map_consistency_ros.core.consistency import (  # noqa: E402
+    ConsistencyResult, inconsistent_endpoints)
 from map_consistency_ros.core.measure import point_distances  # noqa: E402
 from map_consistency_ros.core.scan_geometry import ScanSet  # noqa: E402
 
 # An end point counts as visibly inconsistent this many pair scales inside the other polygon.
 _HIGHLIGHT_SCALES = 3.0
-
-
-def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult) -> np.ndarray:
-    """World coordinates (M, 2) of end points of flagged scans lying deep in a failed partner.
-
-    "Deep" means farther inside the partner's visibility polygon than three pair scales, the
-    points that make the pair fail (Fig. 1 of the paper).
-    """
-    flagged = result.inconsistent
-    points = []
-    for index in np.flatnonzero(result.failed):
-        i, j = result.pairs[index]
-        if not (flagged[i] or flagged[j]):
-            continue
-        limit = _HIGHLIGHT_SCALES * max(result.scales[i], result.scales[j])
-        of_j_in_i, of_i_in_j = point_distances(scans, int(i), int(j))
-        if flagged[j]:
-            points.append(scans.endpoints[j][of_j_in_i > limit])
-        if flagged[i]:
-            points.append(scans.endpoints[i][of_i_in_j > limit])
-    return np.concatenate(points) if points else np.empty((0, 2))
 
 
 def plot_map(ax, scans: ScanSet, result: ConsistencyResult | None = None, title: str = '') -> None:
@@ -51,7 +31,7 @@ def plot_map(ax, scans: ScanSet, result: ConsistencyResult | None = None, title:
         flagged_points = scans.endpoints[flagged][scans.valid[flagged]]
         ax.scatter(flagged_points[:, 0], flagged_points[:, 1], s=0.3, c='tab:orange',
                    linewidths=0, rasterized=True, label='inconsistent scans')
-        deep = inconsistent_endpoints(scans, result)
+        deep = inconsistent_endpoints(scans, result, min_depth=_HIGHLIGHT_SCALES)
         ax.scatter(deep[:, 0], deep[:, 1], s=2.0, c='red', linewidths=0,
                    label='inconsistent end points')
         ax.scatter(scans.sensor_poses[flagged, 0], scans.sensor_poses[flagged, 1], s=6,

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from map_consistency_ros.core import statistics
-from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.measure import PairMeasures, pair_measures, point_distances
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.spatial_index import candidate_pairs, extents_overlap
 
@@ -246,3 +246,26 @@ def average_inconsistency(measures: PairMeasures) -> float:
     if not overlapping.any():
         return 0.0
     return float(measures.distance_sum[overlapping].mean())
+
+
+def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
+                           max_pairs: int | None = None, min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) inside the other scan's polygon in failed pairs (the paper's Fig. 1).
+
+    Only failed pairs that involve an inconsistent scan count, the `max_pairs` with the largest
+    statistic (all when None), so that a badly broken map stays cheap to draw. A point counts
+    when it lies deeper than `min_depth` times the pair's scale max(s_i, s_j) inside.
+    """
+    flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
+    candidates = np.flatnonzero(result.failed & flagged)
+    order = np.argsort(-result.statistic[candidates], kind='stable')
+    points = []
+    for pair in candidates[order[:max_pairs]]:
+        i, j = (int(v) for v in result.pairs[pair])
+        limit = min_depth * max(result.scales[i], result.scales[j])
+        of_points_of_j, of_points_of_i = point_distances(scans, i, j)
+        points.append(scans.endpoints[j][of_points_of_j > limit])
+        points.append(scans.endpoints[i][of_points_of_i > limit])
+    if not points:
+        return np.zeros((0, 2))
+    return np.concatenate(points)

@@ -31,7 +31,7 @@ import numpy as np
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   evaluate_pairs, local_scales)
-from map_consistency_ros.core.measure import PairMeasures, pair_measures, point_distances
+from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
@@ -113,27 +113,6 @@ class MonitorSnapshot:
 def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
     """Poses of the laser for keyframe poses (N, 3) and the laser pose in the keyframe frame."""
     return se2.compose(keyframe_poses, np.broadcast_to(laser_offset, keyframe_poses.shape))
-
-
-def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
-                           max_pairs: int = 200) -> np.ndarray:
-    """End points (M, 2) that lie inside the other scan's polygon in failed pairs (paper, Fig. 1).
-
-    Only pairs that involve an inconsistent scan count, the `max_pairs` with the largest
-    statistic, so that a badly broken map stays cheap to draw.
-    """
-    flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
-    candidates = np.flatnonzero(result.failed & flagged)
-    order = np.argsort(-result.statistic[candidates], kind='stable')
-    points = []
-    for pair in candidates[order[:max_pairs]]:
-        i, j = (int(v) for v in result.pairs[pair])
-        from_points_of_j, from_points_of_i = point_distances(scans, i, j)
-        points.append(scans.endpoints[j][from_points_of_j > 0])
-        points.append(scans.endpoints[i][from_points_of_i > 0])
-    if not points:
-        return np.zeros((0, 2))
-    return np.concatenate(points)
 
 
 def _match(queries: np.ndarray, stamps: np.ndarray, tolerance: float) -> np.ndarray:

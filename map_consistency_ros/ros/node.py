@@ -33,10 +33,9 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.consistency import ConsistencyParameters, inconsistent_endpoints
 from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
-from map_consistency_ros.core.monitor import (ConsistencyMonitor, MonitorSettings,
-                                              UpdateSummary, inconsistent_endpoints)
+from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, UpdateSummary
 from map_consistency_ros.ros import conversions
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
 from map_consistency_ros.ros.markers import consistency_markers

@@ -5,7 +5,7 @@ import pytest
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (
     ConsistencyParameters, average_inconsistency, check_consistency, evaluate_pairs,
-    local_pairs, local_scales)
+    inconsistent_endpoints, local_pairs, local_scales)
 from map_consistency_ros.core.measure import PairMeasures
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io import carmen
@@ -173,3 +173,13 @@ def test_map_as_its_own_reference_reuses_the_candidate_measures(intel):
     explicit = check_consistency(part, reference_scans=intel)
     np.testing.assert_array_equal(implicit.scales, explicit.scales)
     np.testing.assert_array_equal(implicit.inconsistent, explicit.inconsistent)
+
+
+def test_inconsistent_endpoints_keep_only_points_deeper_than_asked(intel):
+    result = check_consistency(_displaced(intel, 450), reference_scans=intel)
+    displaced = _displaced(intel, 450)
+    every = inconsistent_endpoints(displaced, result, max_pairs=5)
+    deep = inconsistent_endpoints(displaced, result, max_pairs=5, min_depth=3.0)
+    assert 0 < len(deep) < len(every)
+    nothing = inconsistent_endpoints(displaced, result, max_pairs=5, min_depth=1e6)
+    assert nothing.shape == (0, 2)

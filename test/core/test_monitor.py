@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.consistency import ConsistencyResult, check_consistency
+from map_consistency_ros.core.consistency import (ConsistencyResult, check_consistency,
+                                                  inconsistent_endpoints)
 from map_consistency_ros.core.measure import point_distances
-from map_consistency_ros.core.monitor import (ConsistencyMonitor, MonitorSettings,
-                                              inconsistent_endpoints)
+from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 

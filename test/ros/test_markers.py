@@ -7,7 +7,8 @@ from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.monitor import ConsistencyMonitor, inconsistent_endpoints
+from map_consistency_ros.core.consistency import inconsistent_endpoints
+from map_consistency_ros.core.monitor import ConsistencyMonitor
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.ros.markers import (CONSISTENT, INCONSISTENT, KEYFRAME_NAMESPACE,
                                              POINTS_NAMESPACE, UNTESTED, consistency_markers)
