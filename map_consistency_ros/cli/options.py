@@ -4,7 +4,10 @@ from __future__ import annotations
 import argparse
 import math
 
+import dataclasses
+
 from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.explanation import ExplanationSettings
 
 _DEFAULTS = ConsistencyParameters()
 
@@ -67,3 +70,29 @@ def parameters_from_args(args: argparse.Namespace) -> ConsistencyParameters:
         failure_probability=args.failure_probability, binomial_alpha=args.binomial_alpha,
         local_window=args.local_window, min_points=args.min_points,
         trim_largest=args.trim, flag_window=args.flag_window)
+
+
+def _field_help(field: dataclasses.Field) -> str:
+    metadata = field.metadata
+    unit = f' [{metadata["unit"]}]' if metadata.get('unit') else ''
+    bounds = metadata.get('range')
+    span = f', {bounds[0]:g} to {bounds[1]:g}' if bounds else ''
+    return f'{metadata["description"]}{unit} (default %(default)s{span})'
+
+
+def add_verdict_arguments(parser: argparse.ArgumentParser) -> None:
+    """The second stage (misalignment or change), one option per ExplanationSettings field."""
+    group = parser.add_argument_group('verdict: misalignment or change')
+    for field in dataclasses.fields(ExplanationSettings):
+        flag = '--' + field.name.replace('_', '-')
+        if field.type in ('bool', bool):
+            group.add_argument(flag, action='store_true', help=_field_help(field))
+        else:
+            kind = int if isinstance(field.default, int) else float
+            group.add_argument(flag, type=kind, default=field.default, help=_field_help(field))
+
+
+def explanation_from_args(args: argparse.Namespace) -> ExplanationSettings:
+    """ExplanationSettings from the parsed options (ValueError names a bad one)."""
+    return ExplanationSettings(**{field.name: getattr(args, field.name)
+                                  for field in dataclasses.fields(ExplanationSettings)})

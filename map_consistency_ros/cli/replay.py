@@ -39,6 +39,7 @@ import numpy as np
 from map_consistency_ros.cli import check, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
+from map_consistency_ros.core.explanation import Assessment, explain
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.bags import (PATH_TYPE, BadMessage, BagReader, BagTopics,
                                          Constraints, OdometryKeyframes, PoseSample, Scan,
@@ -82,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar='METRES',
                         help='usable range, capped by each scan\'s range_max (default %(default)s)')
     options.add_test_arguments(parser)
+    options.add_verdict_arguments(parser)
     check.add_output_arguments(parser)
     parser.add_argument('--stats-plot', type=Path, metavar='PNG',
                         help='write the histogram of Psi over the tested pairs')
@@ -284,9 +286,9 @@ def replay_bag(args: argparse.Namespace, bag: BagReader) -> tuple[MonitorSnapsho
     return snapshot, replay, details
 
 
-def _print_summary(snapshot: MonitorSnapshot, replay: Replay, bag: BagReader) -> None:
+def _print_summary(assessment: Assessment, replay: Replay, bag: BagReader) -> None:
     stats = replay.stats
-    print(report.format_summary(snapshot.result, bag.source))
+    print(report.format_summary(assessment, bag.source))
     print(f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
           f'{stats.trajectories} trajectory updates')
     print(f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
@@ -365,14 +367,16 @@ def run(args: argparse.Namespace) -> int:
     with open_bag(args) as bag:
         if args.publish:
             return publish_bag(bag, args.rate, quiet=args.quiet, subscribers=args.subscribers)
+        _, explanation = check.verdict_settings(args)
         snapshot, replay, details = replay_bag(args, bag)
         if snapshot.result is None:
             raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
                                          f'{bag.topics.scan} and no pose of {bag.pose_topic} '
                                          'matched one (check --stamp-tolerance)')
-        _print_summary(snapshot, replay, bag)
-    scans = snapshot.scans()
-    check.write_outputs(args, scans, snapshot.result, details)
+        scans = snapshot.scans()
+        assessment = explain(scans, snapshot.result, explanation)
+        _print_summary(assessment, replay, bag)
+    check.write_outputs(args, scans, assessment, details)
     if args.stats_plot:
         plots.save_statistics_figure(args.stats_plot, snapshot.result)
     for label, path in (('report', args.report), ('figure', args.plot),
@@ -380,4 +384,4 @@ def run(args: argparse.Namespace) -> int:
                         ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if snapshot.result.consistent else EXIT_INCONSISTENT
+    return EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
+from map_consistency_ros.core.explanation import Assessment
 
 
 def _plain(value):
@@ -58,6 +59,33 @@ def result_report(result: ConsistencyResult, scan_ids: np.ndarray | None = None)
     }
 
 
+def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None) -> dict:
+    """Both stages: the verdict, each misaligned region and each changed place, on top of the
+    paper's test (result_report). The node's ~/report and the CLI's JSON share it."""
+    ids = _ids(assessment.result, scan_ids)
+    content = result_report(assessment.result, scan_ids)
+    content.update({
+        'verdict': 'consistent' if assessment.consistent else 'inconsistent',
+        'summary_line': assessment.summary_line(),
+        'paper_verdict': 'consistent' if assessment.result.consistent else 'inconsistent',
+        'explanation': assessment.settings.as_dict(),
+        'explained_pairs': assessment.class_counts(),
+        'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
+        'misalignments': [{
+            'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
+            'dx_m': region.correction[0], 'dy_m': region.correction[1],
+            'dtheta_deg': np.degrees(region.correction[2]),
+            'std_dx_m': region.correction_std[0], 'std_dy_m': region.correction_std[1],
+            'std_dtheta_deg': np.degrees(region.correction_std[2]),
+            'displacement_m': region.displacement, 'pairs': region.pairs,
+            'registered': region.registered,
+        } for region in assessment.misalignments],
+        'changes': [{'scans': ids[place.scans], 'x': place.x, 'y': place.y,
+                     'points': place.points} for place in assessment.changes],
+    })
+    return content
+
+
 def write_pairs_csv(path: str | Path, result: ConsistencyResult,
                     scan_ids: np.ndarray | None = None) -> None:
     """Every overlapping pair (n_ij > 0): i, j, M_ij, n_ij, psi_ij (empty if untested), failed."""
@@ -77,22 +105,44 @@ def write_pairs_csv(path: str | Path, result: ConsistencyResult,
                              int(result.failed[index])])
 
 
-def format_summary(result: ConsistencyResult, source: str,
+def format_summary(assessment: Assessment, source: str,
                    scan_ids: np.ndarray | None = None) -> str:
-    """A few human lines: what was tested and the verdict."""
+    """A few human lines: the verdict, what was tested, the misaligned regions."""
+    result = assessment.result
     figures = result.summary()
     ids = _ids(result, scan_ids)
-    verdict = 'CONSISTENT' if result.consistent else 'INCONSISTENT'
     lines = [
-        f'{source}: {verdict}',
+        f'{source}: {assessment.summary_line()}',
         f'  scans                 {figures["scans"]}',
         f'  overlapping pairs     {figures["overlapping_pairs"]} '
         f'({figures["tested_pairs"]} with enough points to test)',
         f'  failed pairs          {figures["failed_pairs"]}',
-        f'  inconsistent scans    {figures["inconsistent_scans"]}',
+        f'  paper\'s test flags    {figures["inconsistent_scans"]} scans',
     ]
-    if not result.consistent:
-        shown = ', '.join(str(ids[index]) for index in result.inconsistent_scans[:20])
-        more = ' ...' if figures['inconsistent_scans'] > 20 else ''
-        lines.append(f'  flagged scan indices  {shown}{more}')
+    counts = assessment.class_counts()
+    if sum(counts.values()):
+        lines.append('  failed pairs explained ' + ', '.join(
+            f'{count} {name}' for name, count in counts.items()))
+    for region in assessment.misalignments[:_SHOWN_REGIONS]:
+        lines.append(f'  misaligned region     {_span(ids[region.scans])} against '
+                     f'{_span(ids[region.reference_scans])}: {_size(region)}')
+    if len(assessment.misalignments) > _SHOWN_REGIONS:
+        lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions')
     return '\n'.join(lines)
+
+
+_SHOWN_REGIONS = 5
+
+
+def _span(ids: np.ndarray) -> str:
+    if ids.size == 0:
+        return 'no scan'
+    return f'scans {ids.min()}-{ids.max()} ({ids.size})' if ids.size > 1 else f'scan {ids[0]}'
+
+
+def _size(region) -> str:
+    if not region.registered:
+        return f'beyond local registration (a gross error), {region.pairs} pairs'
+    dx, dy, dtheta = region.correction
+    return (f'{region.displacement:.2f} m RMS (dx {dx:+.2f} m, dy {dy:+.2f} m, '
+            f'dtheta {np.degrees(dtheta):+.2f} deg), {region.pairs} pairs')

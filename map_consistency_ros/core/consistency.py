@@ -150,18 +150,24 @@ def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
     return kept
 
 
+def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
+                     parameters: ConsistencyParameters) -> tuple[np.ndarray, np.ndarray]:
+    """Which pairs have enough points to test, and their trimmed Psi_ij (NaN where untested)."""
+    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    tested = count >= parameters.min_points
+    return tested, statistics.standardized_inconsistency(
+        distance_sum, np.where(tested, count, 0), pair_scale)
+
+
 def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
                    parameters: ConsistencyParameters) -> ConsistencyResult:
     """The pairwise and cascaded tests on already measured pairs (no geometry)."""
     scales = np.asarray(scales, dtype=np.float64)
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
-    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
-    tested = count >= parameters.min_points
     pairs = measures.pairs
     pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]
-    statistic = statistics.standardized_inconsistency(distance_sum, np.where(tested, count, 0),
-                                                      pair_scale)
+    tested, statistic = robust_statistic(measures, pair_scale, parameters)
     failed = tested & (statistic > statistics.normal_quantile(parameters.alpha))
     overlap_counts = (np.bincount(pairs[tested, 0], minlength=scan_count)
                       + np.bincount(pairs[tested, 1], minlength=scan_count))
@@ -259,8 +265,15 @@ def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
     flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
     candidates = np.flatnonzero(result.failed & flagged)
     order = np.argsort(-result.statistic[candidates], kind='stable')
+    return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)
+
+
+def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                   min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
+    scales inside the other scan's polygon."""
     points = []
-    for pair in candidates[order[:max_pairs]]:
+    for pair in rows:
         i, j = (int(v) for v in result.pairs[pair])
         limit = min_depth * max(result.scales[i], result.scales[j])
         of_points_of_j, of_points_of_i = point_distances(scans, i, j)
