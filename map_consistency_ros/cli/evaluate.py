@@ -28,6 +28,7 @@ from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.baseline import BaselineParameters, map_statistic
 from map_consistency_ros.evaluation import metrics, runner
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
+from map_consistency_ros.core.explanation import ExplanationSettings, explain
 from map_consistency_ros.evaluation.suite import (CORRECTED_LOGS, SuiteMap, SuiteParameters,
                                                   build_suite)
 from map_consistency_ros.io.errors import InputError
@@ -223,7 +224,8 @@ def false_alarm_lines(maps: list[SuiteMap], flagged: np.ndarray, parameters: Con
     if worst is None:
         figure.unlink(missing_ok=True)
         return ['No consistent map is flagged at this setting.']
-    plots.save_map_figure(figure, worst[2], worst[3], title=worst[1])
+    strict = explain(worst[2], worst[3], ExplanationSettings(strict=True))
+    plots.save_map_figure(figure, worst[2], strict, title=worst[1])
     return [*_table(['map', 'flagged scans', 'failed pairs', 'worst pair', 'Psi', 'n_ij'], rows),
             '', f'![{worst[1]}]({figure.parent.name}/{figure.name})']
 
