@@ -367,6 +367,13 @@ def run(args: argparse.Namespace) -> int:
     with open_bag(args) as bag:
         if args.publish:
             return publish_bag(bag, args.rate, quiet=args.quiet, subscribers=args.subscribers)
+    return replay_and_report(args)[0]
+
+
+def replay_and_report(args: argparse.Namespace) -> tuple[int, ConsistencyMonitor]:
+    """Replay the bag, print the verdict, write the outputs asked for; the exit code and the
+    monitor in its final state."""
+    with open_bag(args) as bag:
         _, explanation = check.verdict_settings(args)
         snapshot, replay, details = replay_bag(args, bag)
         if snapshot.result is None:
@@ -384,4 +391,4 @@ def run(args: argparse.Namespace) -> int:
                         ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT
+    return (EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT), replay.monitor

@@ -151,7 +151,8 @@ class Assessment:
     def summary_line(self) -> str:
         """e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14 changed places."""
         verdict = 'CONSISTENT' if self.consistent else 'INCONSISTENT'
-        changes = f'{len(self.changes)} changed places (people, moved objects)'
+        places = len(self.changes)
+        changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
         if self.settings.strict:
             flagged = int(self.result.inconsistent.sum())
             return f'{verdict}: {flagged} scans fail the paper\'s test (strict verdict); {changes}'
@@ -164,7 +165,9 @@ class Assessment:
                     f'{abs(math.degrees(largest.correction[2])):.1f} deg')
         else:
             size = 'largest beyond local registration, a gross error'
-        return f'{verdict}: {len(self.misalignments)} misaligned regions ({size}); {changes}'
+        count = len(self.misalignments)
+        regions = f'{count} misaligned region{"s" if count > 1 else ""}'
+        return f'{verdict}: {regions} ({size}); {changes}'
 
 
 def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
