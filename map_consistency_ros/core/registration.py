@@ -77,7 +77,6 @@ class Registrations:
     centroids: np.ndarray  # (T, 2) centroid c of each query submap
     covariances: np.ndarray  # (T, 3, 3) of the corrections; inf where undetermined
     matched: np.ndarray  # (T,) query points matched within the finest gate at the solution
-    agreement: np.ndarray  # (T,) matched within the finest gate / matched within the coarsest
     determined: np.ndarray  # (T,) bool: enough matches and a regular normal matrix
 
     def world_transforms(self) -> np.ndarray:
@@ -182,83 +181,92 @@ def _nearest(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: f
 
 
 @numba.njit(cache=True)
+def _associate(reference: np.ndarray, normals: np.ndarray, grid: tuple, cell: float,
+               query: np.ndarray, cx: float, cy: float, tx: float, ty: float, theta: float,
+               gate: float, residuals: np.ndarray, jacobians: np.ndarray) -> int:
+    """Point-to-line residuals and Jacobians of the query points matched within `gate` at the
+    correction (tx, ty, theta); returns how many matched."""
+    x0, y0, nx, ny, starts, items = grid
+    cos, sin = math.cos(theta), math.sin(theta)
+    matched = 0
+    for index in range(query.shape[0]):
+        ox, oy = query[index, 0] - cx, query[index, 1] - cy
+        rx, ry = cos * ox - sin * oy, sin * ox + cos * oy
+        px, py = rx + cx + tx, ry + cy + ty
+        near = _nearest(reference, x0, y0, nx, ny, cell, starts, items, px, py, gate)
+        if near < 0:
+            continue
+        normal_x, normal_y = normals[near, 0], normals[near, 1]
+        residuals[matched] = (normal_x * (px - reference[near, 0])
+                              + normal_y * (py - reference[near, 1]))
+        jacobians[matched, 0] = normal_x
+        jacobians[matched, 1] = normal_y
+        jacobians[matched, 2] = normal_y * rx - normal_x * ry
+        matched += 1
+    return matched
+
+
+@numba.njit(cache=True)
+def _normal_equations(residuals: np.ndarray, jacobians: np.ndarray, matched: int, trim: float,
+                      hessian: np.ndarray, gradient: np.ndarray) -> tuple:
+    """H and g of the matched rows without the `trim` fraction of largest |residual|; returns
+    the rows kept and their sum of squares."""
+    magnitude = np.abs(residuals[:matched])
+    limit = np.sort(magnitude)[min(int((1.0 - trim) * matched), matched - 1)]
+    hessian[:, :] = 0.0
+    gradient[:] = 0.0
+    kept, square = 0, 0.0
+    for row in range(matched):
+        if magnitude[row] > limit:
+            continue
+        kept += 1
+        square += residuals[row] * residuals[row]
+        for a in range(3):
+            gradient[a] += jacobians[row, a] * residuals[row]
+            for b in range(3):
+                hessian[a, b] += jacobians[row, a] * jacobians[row, b]
+    return kept, square
+
+
+@numba.njit(cache=True)
 def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
                   gates: np.ndarray, iterations: int, trim: float, min_matches: int,
                   out_correction: np.ndarray, out_covariance: np.ndarray) -> tuple:
     # Cells of half the coarsest gate: a lookup scans 5 x 5 cells at first, 3 x 3 later.
     cell = 0.5 * gates[0]
-    x0, y0, nx, ny, starts, items = _grid(reference, cell, gates[0])
-    count = query.shape[0]
+    grid = _grid(reference, cell, gates[0])
     cx, cy = query[:, 0].mean(), query[:, 1].mean()
     tx, ty, theta = 0.0, 0.0, 0.0
-    residuals = np.empty(count)
-    jacobians = np.empty((count, 3))
+    residuals = np.empty(query.shape[0])
+    jacobians = np.empty((query.shape[0], 3))
     hessian = np.zeros((3, 3))
-    kept = 0
-    kept_square = 0.0
-    matched_fine, matched_coarse = 0, 0
-    for stage in range(gates.size + 1):
-        final = stage == gates.size
-        gate = gates[-1] if final else gates[stage]
-        for _ in range(1 if final else iterations):
-            cos, sin = math.cos(theta), math.sin(theta)
-            matched = 0
-            coarse = 0
-            for index in range(count):
-                ox, oy = query[index, 0] - cx, query[index, 1] - cy
-                rx, ry = cos * ox - sin * oy, sin * ox + cos * oy
-                px, py = rx + cx + tx, ry + cy + ty
-                if final:
-                    if _nearest(reference, x0, y0, nx, ny, cell, starts, items, px, py,
-                                gates[0]) >= 0:
-                        coarse += 1
-                near = _nearest(reference, x0, y0, nx, ny, cell, starts, items, px, py, gate)
-                if near < 0:
-                    continue
-                nx_, ny_ = normals[near, 0], normals[near, 1]
-                residuals[matched] = nx_ * (px - reference[near, 0]) + ny_ * (py - reference[near, 1])
-                jacobians[matched, 0] = nx_
-                jacobians[matched, 1] = ny_
-                jacobians[matched, 2] = nx_ * (-ry) + ny_ * rx
-                matched += 1
-            if final:
-                matched_fine, matched_coarse = matched, coarse
+    gradient = np.zeros(3)
+    kept, square, matched = 0, 0.0, 0
+    for stage in range(gates.size):
+        for step_index in range(iterations):
+            matched = _associate(reference, normals, grid, cell, query, cx, cy, tx, ty, theta,
+                                 gates[stage], residuals, jacobians)
             if matched < min_matches:
                 kept = matched
                 break
-            magnitude = np.abs(residuals[:matched])
-            limit = np.sort(magnitude)[min(int((1.0 - trim) * matched), matched - 1)]
-            hessian[:, :] = 0.0
-            gradient = np.zeros(3)
-            kept = 0
-            kept_square = 0.0
-            for row in range(matched):
-                if magnitude[row] > limit:
-                    continue
-                kept += 1
-                kept_square += residuals[row] * residuals[row]
-                for a in range(3):
-                    gradient[a] += jacobians[row, a] * residuals[row]
-                    for b in range(3):
-                        hessian[a, b] += jacobians[row, a] * jacobians[row, b]
-            if final:
-                break
+            kept, square = _normal_equations(residuals, jacobians, matched, trim, hessian,
+                                             gradient)
             if abs(np.linalg.det(hessian)) < 1e-12:
                 break
             step = -np.linalg.solve(hessian, gradient)
             tx += step[0]
             ty += step[1]
             theta += step[2]
-            if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-5:
+            # Millimetres and hundredths of a degree are far below any tolerance of a map.
+            if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 2e-4:
                 break
     out_correction[0], out_correction[1], out_correction[2] = tx, ty, theta
     determined = kept >= min_matches and abs(np.linalg.det(hessian)) > 1e-12
     if determined:
-        sigma2 = kept_square / max(kept - 3, 1)
-        out_covariance[:, :] = sigma2 * np.linalg.inv(hessian)
+        out_covariance[:, :] = square / max(kept - 3, 1) * np.linalg.inv(hessian)
     else:
         out_covariance[:, :] = np.inf
-    return cx, cy, matched_fine, matched_coarse, determined
+    return cx, cy, matched, determined
 
 
 @numba.njit(cache=True, parallel=True)
@@ -270,7 +278,6 @@ def _register_tasks(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray
     centroids = np.zeros((total, 2))
     covariances = np.full((total, 3, 3), np.inf)
     matched = np.zeros(total, dtype=np.int64)
-    coarse = np.zeros(total, dtype=np.int64)
     determined = np.zeros(total, dtype=np.bool_)
     for task in numba.prange(total):
         r0, r1 = offsets[tasks[task, 0]], offsets[tasks[task, 1]]
@@ -279,12 +286,12 @@ def _register_tasks(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray
         query, _ = _thin(points[q0:q1], normals[q0:q1], spacing, False)
         if reference.shape[0] < min_matches or query.shape[0] < min_matches:
             continue
-        cx, cy, fine, wide, ok = _register_one(reference, reference_normals, query, gates,
-                                               iterations, trim, min_matches,
-                                               corrections[task], covariances[task])
+        cx, cy, fine, ok = _register_one(reference, reference_normals, query, gates,
+                                         iterations, trim, min_matches, corrections[task],
+                                         covariances[task])
         centroids[task, 0], centroids[task, 1] = cx, cy
-        matched[task], coarse[task], determined[task] = fine, wide, ok
-    return corrections, centroids, covariances, matched, coarse, determined
+        matched[task], determined[task] = fine, ok
+    return corrections, centroids, covariances, matched, determined
 
 
 def register_submaps(surfaces: SurfacePoints, tasks: np.ndarray,
@@ -300,11 +307,9 @@ def register_submaps(surfaces: SurfacePoints, tasks: np.ndarray,
     if tasks.size and (tasks.min() < 0 or tasks.max() > scans
                        or np.any(tasks[:, 1] <= tasks[:, 0]) or np.any(tasks[:, 3] <= tasks[:, 2])):
         raise ValueError(f'registration tasks must be non-empty scan ranges within [0, {scans}]')
-    corrections, centroids, covariances, matched, coarse, determined = _register_tasks(
+    corrections, centroids, covariances, matched, determined = _register_tasks(
         surfaces.points, surfaces.normals, surfaces.offsets, tasks,
         np.asarray(settings.gates, dtype=np.float64), settings.iterations, settings.trim,
         settings.voxel, settings.query_spacing, settings.min_matches)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        agreement = np.where(coarse > 0, matched / np.maximum(coarse, 1), 0.0)
     return Registrations(corrections=corrections, centroids=centroids, covariances=covariances,
-                         matched=matched, agreement=agreement, determined=determined)
+                         matched=matched, determined=determined)

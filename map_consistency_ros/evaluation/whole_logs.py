@@ -15,23 +15,20 @@ consistent, although they contain small genuine errors of their own.
 """
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
-import multiprocessing
 from dataclasses import dataclass
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic,
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
-from map_consistency_ros.core.explanation import ExplanationSettings, explain
+from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
 from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -171,6 +168,21 @@ def _endpoint_rms(scans: ScanSet, scan_rows: np.ndarray, placed: np.ndarray,
     return np.sqrt(np.where(valid, square, 0.0).sum(axis=1) / np.maximum(valid.sum(axis=1), 1))
 
 
+def build(data: Path, datasets: list[str], seams: int, seed: int) -> list[WholeLogMap]:
+    """The whole suite: displaced copies of each dataset, false-loop maps where it has a graph."""
+    maps = [item for dataset in datasets for item in displaced_maps(dataset, data, seams, seed)]
+    return maps + [item for dataset in datasets if dataset in BUILT_GRAPHS
+                   for item in false_loop_maps(dataset, data, seed)]
+
+
+def assess(whole: WholeLogMap, parameters: ConsistencyParameters | None = None,
+           settings: ExplanationSettings | None = None) -> tuple[ScanSet, Assessment]:
+    """The map's scans and both stages' verdict on them."""
+    log = read_carmen_log(whole.log_path)
+    scans = ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+    return scans, explain(scans, check_consistency(scans, parameters), settings)
+
+
 def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
           settings: ExplanationSettings, baseline: BaselineParameters) -> WholeLogResult:
     """Both stages at the given settings, the baseline's statistic, and the map's label."""
@@ -191,10 +203,6 @@ def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
         seconds_test=middle - started, seconds_explanation=ended - middle)
 
 
-def _single_threaded() -> None:
-    numba.set_num_threads(1)
-
-
 def judge_all(maps: list[WholeLogMap], parameters: ConsistencyParameters | None = None,
               settings: ExplanationSettings | None = None,
               baseline: BaselineParameters | None = None, workers: int | None = None,
@@ -202,15 +210,4 @@ def judge_all(maps: list[WholeLogMap], parameters: ConsistencyParameters | None 
     """`judge` over all maps in a process pool; results in the order of `maps`."""
     arguments = (parameters or ConsistencyParameters(), settings or ExplanationSettings(),
                  baseline or BaselineParameters())
-    workers = workers or os.cpu_count() or 1
-    results: list[WholeLogResult | None] = [None] * len(maps)
-    context = multiprocessing.get_context('spawn')
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_single_threaded) as pool:
-        futures = {pool.submit(judge, whole, *arguments): index
-                   for index, whole in enumerate(maps)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            results[futures[future]] = future.result()
-            if progress:
-                progress(done, len(maps))
-    return results
+    return runner.pooled(judge, maps, arguments, workers, progress)
