@@ -182,14 +182,14 @@ def _nearest(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: f
 
 @numba.njit(cache=True)
 def _associate(reference: np.ndarray, normals: np.ndarray, grid: tuple, cell: float,
-               query: np.ndarray, cx: float, cy: float, tx: float, ty: float, theta: float,
-               gate: float, residuals: np.ndarray, jacobians: np.ndarray) -> int:
-    """Point-to-line residuals and Jacobians of the query points matched within `gate` at the
-    correction (tx, ty, theta); returns how many matched."""
+               query: np.ndarray, stride: int, cx: float, cy: float, tx: float, ty: float,
+               theta: float, gate: float, residuals: np.ndarray, jacobians: np.ndarray) -> int:
+    """Point-to-line residuals and Jacobians of every `stride`-th query point matched within
+    `gate` at the correction (tx, ty, theta); returns how many matched."""
     x0, y0, nx, ny, starts, items = grid
     cos, sin = math.cos(theta), math.sin(theta)
     matched = 0
-    for index in range(query.shape[0]):
+    for index in range(0, query.shape[0], stride):
         ox, oy = query[index, 0] - cx, query[index, 1] - cy
         rx, ry = cos * ox - sin * oy, sin * ox + cos * oy
         px, py = rx + cx + tx, ry + cy + ty
@@ -243,9 +243,15 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
     gradient = np.zeros(3)
     kept, square, matched = 0, 0.0, 0
     for stage in range(gates.size):
+        # Coarse gates only need to bring the query close: every other point does.
+        stride = 1 if stage == gates.size - 1 else 2
         for step_index in range(iterations):
-            matched = _associate(reference, normals, grid, cell, query, cx, cy, tx, ty, theta,
-                                 gates[stage], residuals, jacobians)
+            matched = _associate(reference, normals, grid, cell, query, stride, cx, cy, tx, ty,
+                                 theta, gates[stage], residuals, jacobians)
+            if stride > 1 and matched < 2 * min_matches:
+                stride = 1
+                matched = _associate(reference, normals, grid, cell, query, stride, cx, cy, tx,
+                                     ty, theta, gates[stage], residuals, jacobians)
             if matched < min_matches:
                 kept = matched
                 break
@@ -270,25 +276,51 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
 
 
 @numba.njit(cache=True, parallel=True)
-def _register_tasks(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
-                    tasks: np.ndarray, gates: np.ndarray, iterations: int, trim: float,
-                    voxel: float, spacing: float, min_matches: int):
-    total = tasks.shape[0]
+def _thin_ranges(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                 ranges: np.ndarray, cell: float, need_normal: bool):
+    """Every submap (scan range) of `ranges` (R, 2) thinned once: submap r owns rows
+    starts[r]:starts[r] + counts[r] of the returned points and normals."""
+    sizes = np.empty(ranges.shape[0], dtype=np.int64)
+    for row in range(ranges.shape[0]):
+        sizes[row] = offsets[ranges[row, 1]] - offsets[ranges[row, 0]]
+    starts = np.zeros(ranges.shape[0], dtype=np.int64)
+    starts[1:] = np.cumsum(sizes)[:-1]
+    total = int(sizes.sum())
+    out_points = np.empty((total, 2))
+    out_normals = np.empty((total, 2))
+    counts = np.zeros(ranges.shape[0], dtype=np.int64)
+    for row in numba.prange(ranges.shape[0]):
+        first, last = offsets[ranges[row, 0]], offsets[ranges[row, 1]]
+        kept, kept_normals = _thin(points[first:last], normals[first:last], cell, need_normal)
+        begin = starts[row]
+        out_points[begin:begin + kept.shape[0]] = kept
+        out_normals[begin:begin + kept.shape[0]] = kept_normals
+        counts[row] = kept.shape[0]
+    return out_points, out_normals, starts, counts
+
+
+@numba.njit(cache=True, parallel=True)
+def _register_tasks(references: tuple, queries: tuple, reference_of_task: np.ndarray,
+                    query_of_task: np.ndarray, gates: np.ndarray, iterations: int, trim: float,
+                    min_matches: int):
+    reference_points, reference_normals, reference_starts, reference_counts = references
+    query_points, _, query_starts, query_counts = queries
+    total = reference_of_task.size
     corrections = np.zeros((total, 3))
     centroids = np.zeros((total, 2))
     covariances = np.full((total, 3, 3), np.inf)
     matched = np.zeros(total, dtype=np.int64)
     determined = np.zeros(total, dtype=np.bool_)
     for task in numba.prange(total):
-        r0, r1 = offsets[tasks[task, 0]], offsets[tasks[task, 1]]
-        q0, q1 = offsets[tasks[task, 2]], offsets[tasks[task, 3]]
-        reference, reference_normals = _thin(points[r0:r1], normals[r0:r1], voxel, True)
-        query, _ = _thin(points[q0:q1], normals[q0:q1], spacing, False)
-        if reference.shape[0] < min_matches or query.shape[0] < min_matches:
+        r, q = reference_of_task[task], query_of_task[task]
+        if reference_counts[r] < min_matches or query_counts[q] < min_matches:
             continue
-        cx, cy, fine, ok = _register_one(reference, reference_normals, query, gates,
-                                         iterations, trim, min_matches, corrections[task],
-                                         covariances[task])
+        r0, q0 = reference_starts[r], query_starts[q]
+        cx, cy, fine, ok = _register_one(
+            reference_points[r0:r0 + reference_counts[r]],
+            reference_normals[r0:r0 + reference_counts[r]],
+            query_points[q0:q0 + query_counts[q]], gates, iterations, trim, min_matches,
+            corrections[task], covariances[task])
         centroids[task, 0], centroids[task, 1] = cx, cy
         matched[task], determined[task] = fine, ok
     return corrections, centroids, covariances, matched, determined
@@ -307,9 +339,16 @@ def register_submaps(surfaces: SurfacePoints, tasks: np.ndarray,
     if tasks.size and (tasks.min() < 0 or tasks.max() > scans
                        or np.any(tasks[:, 1] <= tasks[:, 0]) or np.any(tasks[:, 3] <= tasks[:, 2])):
         raise ValueError(f'registration tasks must be non-empty scan ranges within [0, {scans}]')
+    # Tasks share submaps (a block of scans against several others): thin each one once.
+    reference_ranges, reference_of_task = np.unique(tasks[:, :2], axis=0, return_inverse=True)
+    query_ranges, query_of_task = np.unique(tasks[:, 2:], axis=0, return_inverse=True)
+    references = _thin_ranges(surfaces.points, surfaces.normals, surfaces.offsets,
+                              np.ascontiguousarray(reference_ranges), settings.voxel, True)
+    queries = _thin_ranges(surfaces.points, surfaces.normals, surfaces.offsets,
+                           np.ascontiguousarray(query_ranges), settings.query_spacing, False)
     corrections, centroids, covariances, matched, determined = _register_tasks(
-        surfaces.points, surfaces.normals, surfaces.offsets, tasks,
+        references, queries, reference_of_task.reshape(-1), query_of_task.reshape(-1),
         np.asarray(settings.gates, dtype=np.float64), settings.iterations, settings.trim,
-        settings.voxel, settings.query_spacing, settings.min_matches)
+        settings.min_matches)
     return Registrations(corrections=corrections, centroids=centroids, covariances=covariances,
                          matched=matched, determined=determined)
