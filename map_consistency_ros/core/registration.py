@@ -182,14 +182,14 @@ def _nearest(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: f
 
 @numba.njit(cache=True)
 def _associate(reference: np.ndarray, normals: np.ndarray, grid: tuple, cell: float,
-               query: np.ndarray, stride: int, cx: float, cy: float, tx: float, ty: float,
-               theta: float, gate: float, residuals: np.ndarray, jacobians: np.ndarray) -> int:
-    """Point-to-line residuals and Jacobians of every `stride`-th query point matched within
-    `gate` at the correction (tx, ty, theta); returns how many matched."""
+               query: np.ndarray, cx: float, cy: float, tx: float, ty: float, theta: float,
+               gate: float, residuals: np.ndarray, jacobians: np.ndarray) -> int:
+    """Point-to-line residuals and Jacobians of the query points matched within `gate` at the
+    correction (tx, ty, theta); returns how many matched."""
     x0, y0, nx, ny, starts, items = grid
     cos, sin = math.cos(theta), math.sin(theta)
     matched = 0
-    for index in range(0, query.shape[0], stride):
+    for index in range(query.shape[0]):
         ox, oy = query[index, 0] - cx, query[index, 1] - cy
         rx, ry = cos * ox - sin * oy, sin * ox + cos * oy
         px, py = rx + cx + tx, ry + cy + ty
@@ -243,15 +243,9 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
     gradient = np.zeros(3)
     kept, square, matched = 0, 0.0, 0
     for stage in range(gates.size):
-        # Coarse gates only need to bring the query close: every other point does.
-        stride = 1 if stage == gates.size - 1 else 2
         for step_index in range(iterations):
-            matched = _associate(reference, normals, grid, cell, query, stride, cx, cy, tx, ty,
-                                 theta, gates[stage], residuals, jacobians)
-            if stride > 1 and matched < 2 * min_matches:
-                stride = 1
-                matched = _associate(reference, normals, grid, cell, query, stride, cx, cy, tx,
-                                     ty, theta, gates[stage], residuals, jacobians)
+            matched = _associate(reference, normals, grid, cell, query, cx, cy, tx, ty, theta,
+                                 gates[stage], residuals, jacobians)
             if matched < min_matches:
                 kept = matched
                 break
