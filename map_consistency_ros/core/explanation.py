@@ -397,13 +397,64 @@ def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessme
                       misalignments=(), changes=())
 
 
+class RegistrationCache:
+    """Registrations of submaps already registered, keyed by their scans and poses.
+
+    A live map changes a little per keyframe: most registrations of the last explanation
+    still hold. Bounded: the oldest entries go first beyond `capacity`.
+    """
+
+    def __init__(self, capacity: int = 50_000) -> None:
+        self.capacity = capacity
+        self._entries: dict[bytes, tuple] = {}
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @staticmethod
+    def _keys(scans: ScanSet, tasks: np.ndarray) -> list[bytes]:
+        poses, ranges = scans.sensor_poses, scans.ranges
+        return [b''.join((row.tobytes(), poses[row[0]:row[1]].tobytes(),
+                          poses[row[2]:row[3]].tobytes(),
+                          ranges[row[0]:row[1], ::16].tobytes(),
+                          ranges[row[2]:row[3], ::16].tobytes())) for row in tasks]
+
+    def register(self, scans: ScanSet, tasks: np.ndarray,
+                 settings: RegistrationSettings | None) -> Registrations:
+        """register_submaps of `tasks`, computing only those not registered before."""
+        keys = self._keys(scans, tasks)
+        missing = [index for index, key in enumerate(keys) if key not in self._entries]
+        if missing:
+            fresh = register_submaps(surface_points(scans.endpoints, scans.valid),
+                                     tasks[missing], settings)
+            for row, index in enumerate(missing):
+                self._entries[keys[index]] = (
+                    fresh.corrections[row], fresh.centroids[row], fresh.covariances[row],
+                    fresh.matched[row], fresh.determined[row])
+        entries = [self._entries[key] for key in keys]
+        while len(self._entries) > self.capacity:
+            del self._entries[next(iter(self._entries))]
+        if not entries:
+            return register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                    settings)
+        corrections, centroids, covariances, matched, determined = (
+            np.array(column) for column in zip(*entries))
+        return Registrations(corrections=corrections.reshape(-1, 3),
+                             centroids=centroids.reshape(-1, 2),
+                             covariances=covariances.reshape(-1, 3, 3),
+                             matched=matched.astype(np.int64),
+                             determined=determined.astype(bool))
+
+
 def explain(scans: ScanSet, result: ConsistencyResult,
             settings: ExplanationSettings | None = None,
-            registration: RegistrationSettings | None = None) -> Assessment:
+            registration: RegistrationSettings | None = None,
+            cache: RegistrationCache | None = None) -> Assessment:
     """Explain the failed pairs of `result` on the map `scans` and make the verdict.
 
     Only failed pairs that involve a scan flagged by the paper's test are explained: the others
-    cannot change the verdict. A map that passes the paper's test costs nothing here.
+    cannot change the verdict. A map that passes the paper's test costs nothing here. A
+    `cache` kept across calls on a growing map skips the registrations that still hold.
     """
     settings = settings or ExplanationSettings()
     if scans.scan_count != result.scan_count:
@@ -415,8 +466,9 @@ def explain(scans: ScanSet, result: ConsistencyResult,
         return _empty(result, settings)
     pairs = pairs_all[rows]
     tasks, task_of_pair = _tasks(pairs, settings, scans.scan_count)
-    registrations = register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
-                                     registration)
+    registrations = (register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                      registration) if cache is None
+                     else cache.register(scans, tasks, registration))
     transforms = registrations.world_transforms()[task_of_pair]
     passes = _corrected_pairs_pass(scans, result, pairs, transforms)
     displacement = _rms_displacement(transforms, scans.endpoints[pairs[:, 1]],

@@ -5,7 +5,8 @@ import pytest
 
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
-                                                  ExplanationSettings, check_map, explain)
+                                                  ExplanationSettings, RegistrationCache,
+                                                  check_map, explain)
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
@@ -139,3 +140,23 @@ def test_settings_are_checked():
                                     carmen.SensorModel(-1.0, 0.5, 8.0)),
                 check_consistency(ScanSet.from_ranges(np.ones((3, 4)), np.zeros((3, 3)),
                                                       carmen.SensorModel(-1.0, 0.5, 8.0))))
+
+
+def test_a_cache_gives_the_same_assessment_and_registers_only_what_changed(intel, corrected):
+    log, _ = intel
+    cache = RegistrationCache()
+    first = explain(_map(intel), corrected.result, cache=cache)
+    registered = len(cache)
+    assert registered > 0
+    assert first.summary_line() == corrected.summary_line()
+    assert np.array_equal(first.pair_classes, corrected.pair_classes)
+    # The same map again: nothing new to register.
+    explain(_map(intel), corrected.result, cache=cache)
+    assert len(cache) == registered
+    # A loop closure moves the last scans: only the submaps holding them are registered again.
+    poses = displace(log.laser_poses[:SCANS], 280, SCANS, 0.0, np.array([0.2, 0.0]))
+    moved = _map(intel, poses=poses)
+    again = explain(moved, check_consistency(moved), cache=cache)
+    assert registered < len(cache) < 2 * registered
+    fresh = explain(moved, again.result)
+    assert again.summary_line() == fresh.summary_line()
