@@ -13,11 +13,11 @@ Medians of --repeat runs after a warm-up, wall and process CPU seconds.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
 
+from bench_measure import median_time  # this folder's helper: bench scripts run from here
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import explain
 from map_consistency_ros.core.scan_geometry import ScanSet
@@ -25,18 +25,6 @@ from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 DATA = Path(__file__).resolve().parents[2] / 'shared' / 'data'
-
-
-def median_time(function, repeat: int) -> tuple[float, float, object]:
-    """Median wall and CPU seconds of `repeat` calls after one warm-up, and the last result."""
-    result = function()
-    walls, cpus = [], []
-    for _ in range(repeat):
-        wall, cpu = time.perf_counter(), time.process_time()
-        result = function()
-        walls.append(time.perf_counter() - wall)
-        cpus.append(time.process_time() - cpu)
-    return float(np.median(walls)), float(np.median(cpus)), result
 
 
 def maps() -> list[tuple[str, ScanSet]]:
@@ -62,10 +50,11 @@ def main() -> None:
     print(f'{"map":<30} {"paper test [s]":>16} {"explanation [s]":>17} {"ratio":>7}  '
           'explained pairs')
     for name, scans in maps():
-        test_wall, test_cpu, result = median_time(lambda: check_consistency(scans), args.repeat)
-        wall, cpu, assessment = median_time(lambda: explain(scans, result), args.repeat)
-        print(f'{name:<30} {test_wall:7.3f} ({test_cpu:5.2f}) {wall:8.3f} ({cpu:5.2f}) '
-              f'{wall / test_wall:6.0%}  {assessment.explained_pairs.size} of '
+        test, result = median_time(lambda: check_consistency(scans), args.repeat)
+        second, assessment = median_time(lambda: explain(scans, result), args.repeat)
+        print(f'{name:<30} {test.wall:7.3f} ({test.cpu:5.2f}) {second.wall:8.3f} '
+              f'({second.cpu:5.2f}) {second.wall / test.wall:6.0%}  '
+              f'{assessment.explained_pairs.size} of '
               f'{result.failed_pair_count} failed')
     print('(wall seconds, CPU seconds in brackets; ratio = explanation / paper test, wall)')
 
