@@ -32,7 +32,9 @@ from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   evaluate_pairs, local_scales)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
+                                                check_constraint_rows, split_constraint_rows)
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
 
@@ -48,19 +50,31 @@ _SLOT_BITS = 31
 class MonitorSettings:
     """Bookkeeping of the monitor (the statistics are in ConsistencyParameters)."""
 
-    laser_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # laser pose in the keyframe frame
-    stamp_tolerance: float = 1e-3  # seconds between a pose stamp and its scan's stamp
-    max_buffered_scans: int = 2000  # scans waiting for a pose; the oldest are dropped beyond
-    move_tolerance: float = 0.01  # metres a keyframe must move to be measured again
-    move_angle_tolerance: float = 0.005  # radians, idem
-    cell_size: float = 8.0  # metres, cell of the spatial index of scan extents
+    laser_offset: tuple[float, float, float] = parameter(
+        (0.0, 0.0, 0.0), 'pose [x, y, yaw] of the laser in the keyframe frame', 'm, m, rad')
+    stamp_tolerance: float = parameter(
+        1e-3, 'largest |pose stamp - scan stamp| of a keyframe', 's', (0.0, 1.0))
+    max_buffered_scans: int = parameter(
+        2000, 'scans waiting for a pose; the oldest are dropped (and counted) beyond', '',
+        (1, 1_000_000))
+    move_tolerance: float = parameter(
+        0.01, 'a keyframe moving further is measured again', 'm', (0.0, 10.0))
+    move_angle_tolerance: float = parameter(
+        0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
+    cell_size: float = parameter(
+        8.0, 'cell of the spatial index of scan extents, about a scan\'s extent', 'm',
+        (0.1, 1000.0))
+    max_pose_extent: float = parameter(
+        1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
+        (1.0, 1e9))
 
     def __post_init__(self) -> None:
         if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
             raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
         if self.max_buffered_scans < 1:
             raise ValueError('max_buffered_scans must be at least 1')
-        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size'):
+        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size',
+                     'max_pose_extent'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'{name} must be a finite non-negative number, got {value}')
@@ -99,6 +113,8 @@ class MonitorSnapshot:
     buffered_scans: int = 0
     unmatched_poses: int = 0
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
+    dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
+    poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
 
     @property
     def keyframe_count(self) -> int:
@@ -282,7 +298,9 @@ class ConsistencyMonitor:
         self._result: ConsistencyResult | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
-        self._constraints = np.zeros((0, 11))
+        self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
+        self.dropped_scans = 0  # pushed out of the full buffer
+        self._newest_scan = -math.inf
 
     # -- input -------------------------------------------------------------------------------
 
@@ -322,8 +340,19 @@ class ConsistencyMonitor:
         if self._registered_slot(stamp) is not None:
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
         self._buffer[stamp] = ranges
+        self._newest_scan = max(self._newest_scan, stamp)
         while len(self._buffer) > self.settings.max_buffered_scans:
             self._buffer.pop(min(self._buffer))
+            self.dropped_scans += 1
+
+    def pose_problem(self, pose: np.ndarray) -> str:
+        """Why a single pose (3,) is unusable ('' when it is usable)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (3,) or not np.isfinite(pose).all():
+            return f'non-finite values or an unusable quaternion ({pose.tolist()})'
+        if np.abs(pose[:2]).max() > self.settings.max_pose_extent:
+            return f'beyond max_pose_extent = {self.settings.max_pose_extent:g} m'
+        return ''
 
     @property
     def pending(self) -> bool:
@@ -347,7 +376,13 @@ class ConsistencyMonitor:
         finite = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
         if not finite.all():
             warnings.append(f'{int((~finite).sum())} trajectory poses with non-finite values '
-                            'skipped')
+                            '(or an unusable quaternion) skipped')
+        with np.errstate(invalid='ignore'):
+            absurd = finite & (np.abs(poses[:, :2]) > self.settings.max_pose_extent).any(axis=1)
+        if absurd.any():
+            warnings.append(f'{int(absurd.sum())} trajectory poses beyond max_pose_extent = '
+                            f'{self.settings.max_pose_extent:g} m skipped')
+        finite &= ~absurd
         stamps, poses = stamps[finite], poses[finite]
         order = np.argsort(stamps, kind='stable')
         stamps, poses = stamps[order], poses[order]
@@ -384,21 +419,7 @@ class ConsistencyMonitor:
         non-finite values, an edge from a stamp to itself, or an information matrix that is not
         symmetric positive definite.
         """
-        rows = np.asarray(rows, dtype=np.float64)
-        if rows.ndim != 2 or rows.shape[1] != 11:
-            raise ValueError(f'constraint rows must have shape (E, 11), got {rows.shape}')
-        bad = ~np.isfinite(rows).all(axis=1)
-        if bad.any():
-            raise ValueError(f'constraint row {int(np.flatnonzero(bad)[0])} has non-finite values')
-        loops = np.flatnonzero(rows[:, 0] == rows[:, 1])
-        if loops.size:
-            raise ValueError(f'constraint row {int(loops[0])} connects stamp {rows[loops[0], 0]} '
-                             'to itself')
-        information = _information_matrices(rows[:, 5:])
-        not_definite = np.flatnonzero(np.linalg.eigvalsh(information)[:, 0] <= 0.0)
-        if not_definite.size:
-            raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
-                             'that is not positive definite')
+        rows = check_constraint_rows(rows)
         self._constraints = rows.copy()
 
     @property
@@ -421,16 +442,17 @@ class ConsistencyMonitor:
         stamps = keyframes.stamps[order]
         rows = self._constraints
         tolerance = self.settings.stamp_tolerance
-        edge_from, edge_to = _match(rows[:, 0], stamps, tolerance), _match(rows[:, 1], stamps,
-                                                                          tolerance)
+        stamp_from, stamp_to, measurements, information = split_constraint_rows(rows)
+        edge_from, edge_to = (_match(stamp_from, stamps, tolerance),
+                              _match(stamp_to, stamps, tolerance))
         known = (edge_from >= 0) & (edge_to >= 0) & (edge_from != edge_to)
         if not known.any():
             return None
         fixed = np.zeros(stamps.size, dtype=bool)
         fixed[0] = True
         return PoseGraph(poses=keyframes.poses[order], edge_from=edge_from[known],
-                         edge_to=edge_to[known], measurements=rows[known, 2:5],
-                         information=_information_matrices(rows[known, 5:]), fixed=fixed)
+                         edge_to=edge_to[known], measurements=measurements[known],
+                         information=information[known], fixed=fixed)
 
     def snapshot(self) -> MonitorSnapshot:
         """Copies of the keyframes in stamp order and the last verdict."""
@@ -440,7 +462,8 @@ class ConsistencyMonitor:
                                    poses=empty, incremental_poses=empty, ranges=np.zeros((0, 0)),
                                    model=self._model, laser_offset=self._offset.copy(),
                                    result=None, buffered_scans=len(self._buffer),
-                                   unmatched_poses=self._unmatched, last_update=self._last)
+                                   unmatched_poses=self._unmatched, last_update=self._last,
+                                   **self._loss())
         keyframes = self._keyframes
         order = keyframes.order()
         return MonitorSnapshot(
@@ -449,7 +472,15 @@ class ConsistencyMonitor:
             ranges=keyframes.ranges[order], model=self._model,
             laser_offset=self._offset.copy(), result=self._result,
             buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
-            last_update=self._last)
+            last_update=self._last, **self._loss())
+
+    def _loss(self) -> dict[str, int]:
+        # Scans arrive in stamp order: a pose older than the newest scan and still without
+        # one names a scan that was lost (or refused).
+        unmatched = self._path_stamps[self._path_slots() < 0]
+        late = unmatched < self._newest_scan - self.settings.stamp_tolerance
+        return dict(dropped_scans=self.dropped_scans,
+                    poses_without_scan=int(np.count_nonzero(late)))
 
     # -- bookkeeping -------------------------------------------------------------------------
 
@@ -592,11 +623,3 @@ def _subset(measures: PairMeasures, keep: np.ndarray) -> PairMeasures:
     return PairMeasures(pairs=measures.pairs[keep], distance_sum=measures.distance_sum[keep],
                         point_count=measures.point_count[keep], largest=measures.largest[keep])
 
-
-def _information_matrices(upper: np.ndarray) -> np.ndarray:
-    """(E, 3, 3) symmetric matrices from rows of the upper triangle (I11 I12 I13 I22 I23 I33)."""
-    rows, cols = np.triu_indices(3)
-    matrices = np.zeros((upper.shape[0], 3, 3))
-    matrices[:, rows, cols] = upper
-    matrices[:, cols, rows] = upper
-    return matrices

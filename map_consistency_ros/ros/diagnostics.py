@@ -24,23 +24,41 @@ class MonitorHealth:
     phi: float | None  # tuned DCS Phi, None before a retune
     input_problems: int  # bad messages since start
     recent_problem: str  # the last bad message if it is recent, else ''
-    seconds_since_input: float | None  # None when nothing arrived yet
+    seconds_since_input: float | None  # None when nothing arrived yet, on the node's clock
     stale_timeout: float
+    lost_scans: int = 0  # scans the node could not process: DDS losses, full queue or buffer
+    gap_scans: int = 0  # scans missing from the stamp sequence (an estimate)
+    poses_without_scan: int = 0  # keyframe poses older than the newest scan and still unmatched
+    resets: int = 0
+    last_reset: str = ''
+
+    @property
+    def loss(self) -> str:
+        """What was lost, '' when nothing was."""
+        parts = []
+        if self.lost_scans:
+            parts.append(f'{self.lost_scans} scans lost')
+        if self.poses_without_scan:
+            parts.append(f'{self.poses_without_scan} keyframe poses name scans never received')
+        return ', '.join(parts)
 
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     """(level, message): STALE without recent input, ERROR for an inconsistent map, WARN for
-    no verdict yet or a recent bad message, OK otherwise."""
+    no verdict yet, lost input or a recent bad message, OK otherwise."""
     if health.seconds_since_input is None:
         return DiagnosticStatus.STALE, 'no scan or trajectory received yet'
     if health.seconds_since_input > health.stale_timeout:
         return DiagnosticStatus.STALE, (f'no input for {health.seconds_since_input:.1f} s '
                                         f'(stale after {health.stale_timeout:g} s)')
+    loss = f'; {health.loss}' if health.loss else ''
     if health.consistent is False:
         return DiagnosticStatus.ERROR, (f'map inconsistent: {health.inconsistent_scans} of '
-                                        f'{health.keyframes} scans fail')
+                                        f'{health.keyframes} scans fail{loss}')
     if health.consistent is None:
-        return DiagnosticStatus.WARN, 'no keyframe yet: no trajectory pose matches a scan'
+        return DiagnosticStatus.WARN, f'no keyframe yet: no trajectory pose matches a scan{loss}'
+    if loss:
+        return DiagnosticStatus.WARN, f'map consistent ({health.keyframes} scans){loss}'
     if health.recent_problem:
         return DiagnosticStatus.WARN, f'map consistent; bad input: {health.recent_problem}'
     return DiagnosticStatus.OK, f'map consistent ({health.keyframes} scans)'
@@ -66,6 +84,11 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'input problems': str(health.input_problems),
         'last input problem': health.recent_problem or 'none',
         'seconds since input': _optional(health.seconds_since_input, digits=1),
+        'lost scans': str(health.lost_scans),
+        'scans missing from stamps': str(health.gap_scans),
+        'poses without scan': str(health.poses_without_scan),
+        'resets': str(health.resets),
+        'last reset': health.last_reset or 'none',
     }
     return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
                             hardware_id=hardware_id,
