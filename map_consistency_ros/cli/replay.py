@@ -40,7 +40,7 @@ from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
 from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot
-from map_consistency_ros.core.parameters import settings_from_values, unknown_names
+from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
 from map_consistency_ros.core.records import KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
@@ -209,15 +209,28 @@ def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
     return BagReader(args.bags, topics, max_range=max_range)
 
 
+def node_parameters(values: dict) -> dict:
+    """Every node parameter as the node would take it (all checked, so a parameter file that
+    would stop the node stops replay too); replay applies those of the feed, the monitor and
+    the test."""
+    from map_consistency_ros.ros.settings import NODE_GROUPS
+    checked = {}
+    try:
+        for _, group in NODE_GROUPS:
+            settings = settings_from_values(group, values)
+            checked.update({spec.name: getattr(settings, spec.name) for spec in specs(group)})
+    except ValueError as error:
+        raise InputError('parameters', str(error)) from None
+    return checked
+
+
 def make_feed(values: dict, pose_type: str) -> MonitorFeed:
     """The node's feed with the node's parameters; the pose source is the bag topic's type."""
     source = next(name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
-    try:
-        return MonitorFeed(settings_from_values(ConsistencyParameters, values),
-                           settings_from_values(MonitorSettings, values),
-                           settings_from_values(FeedSettings, dict(values, pose_source=source)))
-    except ValueError as error:
-        raise InputError('parameters', str(error)) from None
+    values = dict(values, pose_source=source)
+    return MonitorFeed(settings_from_values(ConsistencyParameters, values),
+                       settings_from_values(MonitorSettings, values),
+                       settings_from_values(FeedSettings, values))
 
 
 def replay_bag(args: argparse.Namespace, bag: BagReader,
@@ -225,7 +238,8 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
     """Run the monitor over an open bag; the snapshot, the replay and the report details."""
     values = parameter_values(args) if values is None else values
     offset, offset_source = _laser_offset(bag, values)
-    feed = make_feed(dict(values, laser_offset=tuple(offset)), bag.pose_type)
+    parameters = node_parameters(dict(values, laser_offset=tuple(offset)))
+    feed = make_feed(parameters, bag.pose_type)
     replay = Replay(bag, feed)
     with ProgressBar('replaying', enabled=not args.quiet) as progress:
         snapshot = replay.run(progress, args.duration)
@@ -253,6 +267,7 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
                    'realtime_scans_per_second': replay.stats.realtime_rate,
                    'warnings': replay.stats.warnings},
         'keyframe_stamps': snapshot.stamps,
+        'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),
     }
     if snapshot.model is not None:
         model = snapshot.model

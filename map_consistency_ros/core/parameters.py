@@ -113,8 +113,13 @@ def settings_from_values(settings_class: type, values: Mapping[str, Any], **extr
 
 def closest_name(name: str, names: Iterable[str]) -> str | None:
     """The valid name a misspelt one most likely meant, None when nothing is close."""
-    matches = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
-    return matches[0] if matches else None
+    names = list(names)
+    matches = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
+    if matches:
+        return matches[0]
+    # a shortened name ('trim' for trim_largest) is too short for a similarity ratio
+    containing = sorted((known for known in names if name in known), key=len)
+    return containing[0] if containing else None
 
 
 def unknown_names(values: Iterable[str], known: Iterable[str]) -> list[str]:

@@ -383,3 +383,63 @@ def test_bundled_demo_bag(shared_data):
     turn = np.angle(np.exp(1j * (last_path.poses[:, 2] - log.laser_poses[:290, 2])))
     np.testing.assert_allclose(turn, 0.0, atol=1e-12)
     np.testing.assert_allclose(last_path.stamps, log.timestamps[:290])
+
+
+def _changed(spec):
+    """A valid value of a parameter other than its default."""
+    if spec.choices:
+        return spec.choices[(spec.choices.index(spec.default) + 1) % len(spec.choices)]
+    if spec.kind is bool:
+        return not spec.default
+    if spec.kind is str:
+        return 'odom'
+    if spec.kind is tuple:
+        return [0.01, 0.0, 0.0]
+    low, high = spec.bounds
+    value = spec.default * 1.1 if spec.default else low + (high - low) * 1e-3
+    if spec.kind is int:
+        value = spec.default + 1
+    assert low <= value <= high and value != spec.default, spec.name
+    return value
+
+
+def test_every_node_parameter_goes_through_params_file(round_trip, tmp_path, capsys):
+    """The node's parameter file drives replay: every parameter is checked and reported."""
+    import yaml
+
+    from map_consistency_ros.core.parameters import specs
+    from map_consistency_ros.ros.settings import NODE_GROUPS
+    values = {spec.name: _changed(spec) for _, group in NODE_GROUPS for spec in specs(group)}
+    values['pose_source'] = 'path'  # the bag's pose topic is a Path
+    params = tmp_path / 'params.yaml'
+    params.write_text(yaml.safe_dump({'/map_consistency': {'ros__parameters': values}}))
+    code = main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
+                 '--report', str(tmp_path / 'r.json')])
+    assert code in (0, 1) and 'unknown parameter' not in capsys.readouterr().err
+    report = json.loads((tmp_path / 'r.json').read_text())
+    used = report['node_parameters']
+    assert used.keys() == values.keys()
+    for name, value in values.items():
+        assert used[name] == pytest.approx(value), name
+    test_parameters = report['parameters']
+    for name in test_parameters:
+        assert test_parameters[name] == pytest.approx(values[name]), name
+    # an option given on the command line wins over the file
+    main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
+          '--alpha', '0.02', '--report', str(tmp_path / 'r2.json')])
+    assert json.loads((tmp_path / 'r2.json').read_text())['parameters']['alpha'] == 0.02
+
+
+def test_bad_parameter_files(round_trip, tmp_path, capsys):
+    bag = str(round_trip[0] / 'bag')
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    alpha: "0.01"\n')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) == 2
+    assert "alpha: expected a float, got a string '0.01'" in _one_line_error(capsys)
+    params.write_text('/**:\n  ros__parameters:\n    max_range: 8\n    trim: 5\n')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) in (0, 1)
+    error = capsys.readouterr().err
+    assert "unknown parameter 'trim' ignored; did you mean trim_largest?" in error
+    params.write_text('just text')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) == 2
+    assert 'not a ROS 2 parameter file' in _one_line_error(capsys)

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.feed import MonitorFeed, PoseKeyframer
+from map_consistency_ros.core.feed import MonitorFeed
 from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io import bags, messages
@@ -99,46 +99,6 @@ def test_intel_ros1_bag(shared_data):
     assert scan.model.angle_min == pytest.approx(-math.pi / 2, rel=1e-7)
     assert scan.model.angle_increment == pytest.approx(math.pi / 179, rel=1e-6)
     assert (scan.model.range_min, scan.model.max_range) == pytest.approx((0.1, 80.0))
-
-
-def _sample(stamp, pose):
-    return PoseSample(stamp=stamp, pose=np.asarray(pose, dtype=float), frame_id='odom',
-                      child_frame_id='base_link')
-
-
-def _scan(stamp):
-    return Scan(stamp=stamp, ranges=np.ones(3, dtype=np.float32), model=MODEL, frame_id='laser')
-
-
-def test_odometry_keyframes_interpolate_and_select():
-    keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
-    keyframes.add_scan(_scan(0.5))  # before any pose: cannot be placed
-    assert keyframes.add_pose(_sample(1.0, [1.0, 2.0, math.pi / 2])) == []
-    assert keyframes.dropped == 1
-    for stamp in (1.5, 2.0, 2.5, 3.5):
-        keyframes.add_scan(_scan(stamp))
-    # From (1, 2, pi/2) the robot moves 2 m forward and turns 0.4 rad by t = 3.
-    placed = keyframes.add_pose(_sample(3.0, [1.0, 4.0, math.pi / 2 + 0.4]))
-    # t = 1.5: a quarter of the step, (0.5 m, 0.1 rad) in the start frame -> first keyframe.
-    # t = 2.0: 0.5 m and 0.1 rad further: below both thresholds. t = 2.5: 1 m further.
-    # t = 3.5 waits for a later pose.
-    assert [scan.stamp for scan in placed] == [1.5, 2.5]
-    np.testing.assert_allclose(keyframes.poses, [[1.0, 2.5, math.pi / 2 + 0.1],
-                                                 [1.0, 3.5, math.pi / 2 + 0.3]], atol=1e-12)
-    assert keyframes.stamps == [1.5, 2.5]
-    assert [scan.stamp for scan in keyframes.add_pose(_sample(4.0, [1.0, 6.0, 2.0]))] == [3.5]
-
-
-def test_odometry_keyframes_turning_in_place_and_exact_stamps():
-    keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
-    keyframes.add_pose(_sample(0.0, [1.0, 1.0, 3.0]))
-    keyframes.add_scan(_scan(0.0))
-    keyframes.add_scan(_scan(1.0))
-    placed = keyframes.add_pose(_sample(1.0, [1.0, 1.0, -2.7]))  # wraps through pi: +0.583 rad
-    assert [scan.stamp for scan in placed] == [0.0, 1.0]
-    np.testing.assert_allclose(keyframes.poses[1], [1.0, 1.0, -2.7])
-    with pytest.raises(ValueError):
-        PoseKeyframer(min_distance=-1.0, min_angle=0.1)
 
 
 def test_missing_bag(tmp_path):
