@@ -85,6 +85,7 @@ class Probe:
                                       self.optimized.append, LATCHED)
         self.check = self.node.create_client(Trigger, node_ns + 'check')
         self.retune = self.node.create_client(Trigger, node_ns + 'retune_dcs')
+        self.reset = self.node.create_client(Trigger, node_ns + 'reset')
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         self.diagnostics.extend(s for s in msg.status if s.name == STATUS_NAME)
@@ -277,6 +278,20 @@ def node_alive(probe: Probe) -> bool:
     return probe.check.wait_for_service(timeout_sec=TIMEOUT)
 
 
+def test_absurd_poses_are_skipped_and_counted(probe, intel):
+    log, _ = intel
+    problems = int(probe.status_value('input problems'))
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    absurd = messages.path_message(message_class, stamps, poses, 'map')
+    absurd.poses[3].pose.orientation.z = float('inf')  # (0, 0, inf, 1): no heading
+    absurd.poses[4].pose.position.x = 1e300
+    probe.trajectory.publish(absurd)
+    _wait(lambda: int(probe.status_value('input problems')) >= problems + 2,
+          what='two skipped poses counted')
+    assert probe.status_value('scans') == str(SCANS)
+    assert probe.status_value('inconsistent scans') == '0'  # the two kept their last pose
+
+
 def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     log, model = intel
     stamps = log.timestamps[:SCANS]
@@ -335,6 +350,18 @@ def test_retune_without_a_graph_fails_clearly(probe):
     assert response.message.startswith('no pose graph to tune')
 
 
+def test_retune_refuses_a_graph_it_cannot_tune_honestly(probe, intel):
+    log, _ = intel
+    stamps, logged = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    two_edges = _constraint_rows(stamps[:2], logged, logged, (0, 1))[:2]
+    probe.constraints.publish(messages.constraints_message(message_class, two_edges))
+    response = _wait(lambda: (r := probe.call(probe.retune)).message.startswith('cannot') and r,
+                     what='the refusal')
+    assert not response.success
+    assert 'cannot tune this graph honestly: 2 constraints for 80 keyframes' in response.message
+    assert probe.phi == []
+
+
 def _constraint_rows(stamps, odometry_poses, loop_poses, loop):
     """Odometry between consecutive keyframes and one loop closure measured on `loop_poses`."""
     information = [100.0, 0.0, 0.0, 100.0, 0.0, 400.0]
@@ -368,6 +395,28 @@ def test_retune_rejects_the_wrong_loop_closure(probe, intel):
     error_to_displaced = np.linalg.norm(optimized_poses[:, :2] - displaced[:, :2], axis=1).max()
     assert error_to_logged < 0.05 < error_to_displaced
     _wait(lambda: probe.status_value('phi') == f'{phi:.6f}', what='Phi in the diagnostics')
+
+
+def test_reset_service_and_automatic_reset_on_a_stamp_jump(probe, intel):
+    log, model = intel
+    response = probe.call(probe.reset)
+    assert response.success and response.message == f'reset: {SCANS} keyframes forgotten'
+    _wait(lambda: probe.status_value('scans') == '0', what='no keyframes after the reset')
+    assert probe.status_value('resets') == '1'
+    # the same session again is accepted (no duplicate stamps after a reset)
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    _publish_scans(probe, log, model, range(SCANS))
+    _publish_path(probe, stamps, poses)
+    _wait(lambda: probe.status_value('scans') == str(SCANS), what='the map rebuilt')
+    # a SLAM stack restarting with earlier stamps: the node resets by itself
+    for index in range(6):
+        probe.scan.publish(messages.scan_message(message_class, stamps[index] - 100.0,
+                                                 log.ranges[index], model))
+        time.sleep(0.004)
+    _wait(lambda: probe.status_value('resets') == '2', what='an automatic reset')
+    assert 'scan stamps jumped back' in probe.status_value('last reset')
+    _wait(lambda: probe.status_value('scans') == '0', what='no keyframes of the old session')
+    assert probe.status_value('buffered scans') == '6'
 
 
 def test_diagnostics_turn_stale_when_inputs_stop(probe, node_process):
