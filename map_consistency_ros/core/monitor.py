@@ -466,10 +466,17 @@ class ConsistencyMonitor:
                                    **self._loss())
         keyframes = self._keyframes
         order = keyframes.order()
+        if np.array_equal(order, np.arange(keyframes.count)):
+            # A slot's ranges never change once registered: a read-only view is a snapshot,
+            # and copying every scan on every update would grow with the map.
+            ranges = keyframes.ranges[:keyframes.count].view()
+            ranges.setflags(write=False)
+        else:
+            ranges = keyframes.ranges[order]
         return MonitorSnapshot(
             ids=order.astype(np.int64), stamps=keyframes.stamps[order],
             poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
-            ranges=keyframes.ranges[order], model=self._model,
+            ranges=ranges, model=self._model,
             laser_offset=self._offset.copy(), result=self._result,
             buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
             last_update=self._last, **self._loss())

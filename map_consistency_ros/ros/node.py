@@ -50,7 +50,7 @@ from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
-from map_consistency_ros.ros.markers import consistency_markers
+from map_consistency_ros.ros.markers import MarkerUpdates
 from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -100,23 +100,27 @@ class MapConsistencyNode(Node):
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self._scans: deque[Scan] = deque()
-        self._poses: deque[PoseSample] = deque()
-        self._estimate: KeyframeEstimate | None = None
-        self._constraints: Constraints | None = None
+        # queued records with their arrival (time.monotonic), for the update latency
+        self._scans: deque[tuple[float, Scan]] = deque()
+        self._poses: deque[tuple[float, PoseSample]] = deque()
+        self._estimate: tuple[float, KeyframeEstimate] | None = None
+        self._constraints: tuple[float, Constraints] | None = None
         self._jobs: deque[tuple[Callable[[], object], Future]] = deque()
         self._frame_id = settings.frame_id or 'map'
         self._last_input: float | None = None
         self._problems = 0
         self._last_problem = ('', -math.inf)
         self._warned: dict[str, float] = {}
-        self._latency: float | None = None
+        self._latency: float | None = None  # arrival of a change -> its verdict published
+        self._timing: dict[str, float] = {}  # seconds per stage of the last update
         self._phi: float | None = None
         self._dds_lost = 0  # scans the middleware reported lost
         self._queue_lost = 0  # scans dropped from the node's full queue
         self._retuning = threading.Lock()
         self._tuner: threading.Thread | None = None
         self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
+        self._marker_updates = MarkerUpdates()  # worker thread only
+        self._marker_subscribers = 0
 
         self._markers = self.create_publisher(MarkerArray, '~/markers', RELIABLE)
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -208,7 +212,7 @@ class MapConsistencyNode(Node):
             if len(self._scans) >= self._queue_limit:
                 self._scans.popleft()
                 self._queue_lost += 1
-            self._scans.append(record)
+            self._scans.append((time.monotonic(), record))
         self._wake.set()
 
     def _on_scans_lost(self, info) -> None:
@@ -219,7 +223,8 @@ class MapConsistencyNode(Node):
         record = self._convert('trajectory', messages.PATH_TYPE, msg)
         if record is not None:
             with self._lock:
-                self._estimate = record  # the full estimate: a newer one replaces it
+                # the full estimate: a newer one replaces it
+                self._estimate = (time.monotonic(), record)
             self._wake.set()
 
     def _on_pose(self, msgtype: str, msg) -> None:
@@ -231,14 +236,14 @@ class MapConsistencyNode(Node):
                     self._problems += 1
                     self._last_problem = ('pose: queue full, the oldest pose dropped',
                                           time.monotonic())
-                self._poses.append(record)
+                self._poses.append((time.monotonic(), record))
             self._wake.set()
 
     def _on_constraints(self, msg) -> None:
         record = self._convert('constraints', messages.CONSTRAINTS_TYPE, msg)
         if record is not None:
             with self._lock:
-                self._constraints = record
+                self._constraints = (time.monotonic(), record)
             self._wake.set()
 
     # -- worker ------------------------------------------------------------------------------
@@ -264,21 +269,29 @@ class MapConsistencyNode(Node):
         return records
 
     def _work_once(self) -> None:
-        changed = False
-        for record in self._take():
-            changed |= self._apply(record)
+        changed_at = None  # arrival of the newest record that changed the map
+        monitor_seconds = 0.0
+        for arrival, record in self._take():
+            summary, reset = self._apply(record)
+            if summary is not None or reset:
+                changed_at = arrival
+                monitor_seconds += 0.0 if summary is None else summary.elapsed
         while self._jobs:
             job, future = self._jobs.popleft()
             try:
                 future.set_result(job())
             except Exception as error:  # noqa: BLE001 - handed to the waiting service
                 future.set_exception(error)
+        self._greet_marker_subscribers()
+        start = time.perf_counter()
         self._snapshot = self._feed.monitor.snapshot()
-        if changed:
-            self._publish_verdict()
+        if changed_at is not None:
+            self._timing = {'monitor_s': monitor_seconds,
+                            'snapshot_s': time.perf_counter() - start}
+            self._publish_verdict(changed_at)
 
-    def _apply(self, record) -> bool:
-        """Apply one record through the feed; True when the map changed."""
+    def _apply(self, record):
+        """Apply one record through the feed: (the update or None, whether it reset)."""
         if isinstance(record, KeyframeEstimate):
             self._frame_id = self._settings.frame_id or record.frame_id or 'map'
         applied = self._feed.apply(record)
@@ -288,12 +301,12 @@ class MapConsistencyNode(Node):
             self._input_problem(topic, warning)
         if applied.reset:
             self._after_reset(applied.reset)
-        if applied.summary is not None:
-            self._latency = applied.summary.elapsed
-        return applied.summary is not None or bool(applied.reset)
+        return applied.summary, bool(applied.reset)
 
     def _after_reset(self, reason: str) -> None:
         self.get_logger().warning(f'monitor reset: {reason}')
+        self._markers.publish(self._marker_updates.clear(self._frame_id,
+                                                         self.get_clock().now().to_msg()))
         with self._lock:
             self._dds_lost = self._queue_lost = 0
         self._latency = None
@@ -318,22 +331,43 @@ class MapConsistencyNode(Node):
 
     # -- outputs -----------------------------------------------------------------------------
 
-    def _publish_verdict(self) -> None:
-        """Markers, ~/consistent, ~/report and /diagnostics (worker thread only)."""
+    def _publish_verdict(self, changed_at: float) -> None:
+        """Markers, ~/consistent, ~/report and /diagnostics (worker thread only) for a change
+        whose input arrived at `changed_at` (time.monotonic)."""
         snapshot = self._snapshot
         result = snapshot.result
         if result is None:
             return
+        start = time.perf_counter()
         limit = self._settings.max_marker_pairs
-        points = (np.zeros((0, 2)) if result.consistent else
-                  inconsistent_endpoints(snapshot.scans(), result, limit))
         stamp = self.get_clock().now().to_msg()
-        self._markers.publish(consistency_markers(snapshot, points, self._frame_id, stamp))
+        markers = self._marker_updates.changed(
+            snapshot, lambda: inconsistent_endpoints(snapshot.scans(), result, limit),
+            self._frame_id, stamp)
+        built = time.perf_counter()
+        if markers.markers:
+            self._markers.publish(markers)
         self._consistent.publish(Bool(data=result.consistent))
-        report = dict(result.summary(), update_latency_s=self._latency, phi=self._phi,
-                      inconsistent_stamps=snapshot.stamps[result.inconsistent].tolist())
-        self._report.publish(String(data=json.dumps(report)))
+        self._timing.update(markers_s=built - start, publish_s=time.perf_counter() - built)
+        self._latency = time.monotonic() - changed_at
+        self._report.publish(String(data=json.dumps(self._report_dict())))
         self._publish_diagnostics()
+
+    def _greet_marker_subscribers(self) -> None:
+        """The whole marker array once more when a subscriber joined (RViz started late):
+        updates carry only what changed (worker thread only)."""
+        count = self._markers.get_subscription_count()
+        if count > self._marker_subscribers:
+            self._markers.publish(self._marker_updates.all())
+        self._marker_subscribers = count
+
+    def _report_dict(self) -> dict:
+        """The machine-readable report of ~/report (the one place it is built)."""
+        snapshot = self._snapshot
+        result = snapshot.result
+        return dict(result.summary(), update_latency_s=self._latency, phi=self._phi,
+                    inconsistent_stamps=snapshot.stamps[result.inconsistent].tolist(),
+                    timing=self._timing, lost_scans=self._health().lost_scans)
 
     def _health(self) -> MonitorHealth:
         snapshot = self._snapshot
@@ -385,8 +419,8 @@ class MapConsistencyNode(Node):
         result = self._snapshot.result
         if result is None:
             return False, 'no keyframes yet: no trajectory pose matches a scan'
-        self._latency = summary.elapsed
-        self._publish_verdict()
+        self._timing = {'monitor_s': summary.elapsed}
+        self._publish_verdict(time.monotonic() - summary.elapsed)
         return True, (f"{'consistent' if result.consistent else 'INCONSISTENT'}: "
                       f'{int(result.inconsistent.sum())} of {result.scan_count} scans fail, '
                       f'{result.failed_pair_count} of {result.tested_pair_count} tested pairs '

@@ -1,6 +1,8 @@
 """Markers of a monitored Intel excerpt: stable ids, verdict colours, inconsistent points."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
@@ -11,7 +13,7 @@ from map_consistency_ros.core.consistency import inconsistent_endpoints
 from map_consistency_ros.core.monitor import ConsistencyMonitor
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.ros.markers import (CONSISTENT, INCONSISTENT, KEYFRAME_NAMESPACE,
-                                             POINTS_NAMESPACE, UNTESTED, consistency_markers)
+                                             MarkerUpdates, POINTS_NAMESPACE, UNTESTED)
 
 
 @pytest.fixture(scope='module')
@@ -35,7 +37,7 @@ def test_one_marker_per_keyframe_coloured_by_verdict(snapshot):
     result = snapshot.result
     assert result.inconsistent.any() and not result.inconsistent.all()
     points = inconsistent_endpoints(snapshot.scans(), result)
-    array = consistency_markers(snapshot, points, 'map', Time(sec=5))
+    array = MarkerUpdates().changed(snapshot, lambda: points, 'map', Time(sec=5))
     keyframes = [m for m in array.markers if m.ns == KEYFRAME_NAMESPACE]
     assert [m.id for m in keyframes] == snapshot.ids.tolist()
     for marker, pose, bad, tested in zip(keyframes, snapshot.poses, result.inconsistent,
@@ -52,6 +54,31 @@ def test_one_marker_per_keyframe_coloured_by_verdict(snapshot):
 
 
 def test_no_inconsistent_points_deletes_the_cloud(snapshot):
-    array = consistency_markers(snapshot, np.zeros((0, 2)), 'map', Time())
+    array = MarkerUpdates().changed(snapshot, lambda: np.zeros((0, 2)), 'map', Time())
     [cloud] = [m for m in array.markers if m.ns == POINTS_NAMESPACE]
     assert cloud.action == Marker.DELETE and not cloud.points
+
+
+def test_updates_carry_only_what_changed(shared_data, snapshot):
+    updates = MarkerUpdates()
+    calls = []
+
+    def points():
+        calls.append(1)
+        return inconsistent_endpoints(snapshot.scans(), snapshot.result)
+
+    first = updates.changed(snapshot, points, 'map', Time())
+    assert len(first.markers) == snapshot.keyframe_count + 1 and len(calls) == 1
+    assert updates.changed(snapshot, points, 'map', Time()).markers == []
+    assert len(calls) == 1  # the failed pairs did not change: no new points
+    # one keyframe moves: its arrow and, as it is in failed pairs, the points again
+    moved_poses = snapshot.poses.copy()
+    involved = int(snapshot.result.pairs[snapshot.result.failed][0, 0])
+    moved_poses[involved, 0] += 0.5
+    moved = dataclasses.replace(snapshot, poses=moved_poses)
+    delta = updates.changed(moved, points, 'map', Time())
+    arrows = [m for m in delta.markers if m.ns == KEYFRAME_NAMESPACE]
+    assert [m.id for m in arrows] == [int(snapshot.ids[involved])] and len(calls) == 2
+    assert len(updates.all().markers) == snapshot.keyframe_count + 1
+    [cleared] = updates.clear('map', Time()).markers
+    assert cleared.action == Marker.DELETEALL and updates.all().markers == []

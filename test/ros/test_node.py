@@ -181,8 +181,22 @@ def _publish_path(probe: Probe, stamps, poses) -> None:
     probe.trajectory.publish(messages.path_message(message_class, stamps, poses, 'map'))
 
 
-def _keyframe_markers(array: MarkerArray) -> list[Marker]:
-    return [m for m in array.markers if m.ns == KEYFRAME_NAMESPACE]
+def _marker_state(arrays: list[MarkerArray]) -> dict[tuple[str, int], Marker]:
+    """What RViz shows after the arrays received so far (updates carry only changes)."""
+    shown: dict[tuple[str, int], Marker] = {}
+    for array in list(arrays):
+        for marker in array.markers:
+            if marker.action == Marker.DELETEALL:
+                shown.clear()
+            elif marker.action == Marker.DELETE:
+                shown.pop((marker.ns, marker.id), None)
+            else:
+                shown[(marker.ns, marker.id)] = marker
+    return shown
+
+
+def _keyframe_markers(arrays: list[MarkerArray]) -> list[Marker]:
+    return [m for (ns, _), m in _marker_state(arrays).items() if ns == KEYFRAME_NAMESPACE]
 
 
 def _wrong_loop_closure(poses: np.ndarray, start: int, amount: float = 1.0) -> np.ndarray:
@@ -237,9 +251,8 @@ def test_consistent_map_from_late_and_early_scans(probe, intel):
     assert values['inconsistent scans'] == '0'
     assert values['overlapping pairs'] == str(oracle.overlapping_pair_count)
     assert values['tested pairs'] == str(oracle.tested_pair_count)
-    markers = _wait(lambda: probe.markers and len(_keyframe_markers(probe.markers[-1])) == SCANS
-                    and probe.markers[-1], what='a marker per keyframe')
-    keyframes = _keyframe_markers(markers)
+    keyframes = _wait(lambda: len(k := _keyframe_markers(probe.markers)) == SCANS and k,
+                      what='a marker per keyframe')
     assert sorted(m.id for m in keyframes) == list(range(SCANS))
     assert all(m.color.g > m.color.r for m in keyframes if m.id < SCANS)
 
@@ -307,11 +320,10 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     expected_red = np.flatnonzero(oracle.inconsistent).tolist()
 
     def red_keyframes():
-        latest = probe.markers[-1] if probe.markers else None
-        if latest is None or not any(m.ns == POINTS_NAMESPACE and m.action == Marker.ADD
-                                     for m in latest.markers):
+        shown = _marker_state(probe.markers)
+        if (POINTS_NAMESPACE, 0) not in shown:
             return None
-        return sorted(m.id for m in _keyframe_markers(latest) if m.color.r > m.color.g)
+        return sorted(m.id for m in _keyframe_markers(probe.markers) if m.color.r > m.color.g)
 
     _wait(lambda: red_keyframes() == expected_red, what='red markers of the final estimate')
     _wait(lambda: probe.status_value('inconsistent scans') == str(len(expected_red)),
@@ -340,6 +352,16 @@ def test_a_late_subscriber_gets_the_latched_verdict(probe):
     try:
         _wait(lambda: late, what='the transient-local verdict')
         assert late[-1] is False
+    finally:
+        probe.node.destroy_subscription(subscription)
+
+
+def test_a_late_marker_subscriber_gets_every_marker(probe):
+    late: list[MarkerArray] = []
+    subscription = probe.node.create_subscription(
+        MarkerArray, '/map_consistency/markers', late.append, 10)
+    try:
+        _wait(lambda: len(_keyframe_markers(late)) == SCANS, what='the whole marker array')
     finally:
         probe.node.destroy_subscription(subscription)
 
