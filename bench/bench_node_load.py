@@ -100,6 +100,7 @@ class Observer:
     def close(self) -> None:
         import rclpy
         self.executor.shutdown()
+        self.thread.join(timeout=5)
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
 
