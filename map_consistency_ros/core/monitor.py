@@ -42,6 +42,10 @@ from map_consistency_ros.core.spatial_index import ScanExtentIndex
 # serially (tens of ms on a busy 2-core machine, bench/bench_monitor.py); a keyframe's update
 # measures about a hundred.
 PARALLEL_MIN_PAIRS = 1000
+# The compiled kernel holds the GIL while it runs: batches of at most this many pairs keep a
+# live node's subscriptions and its shutdown responsive during a large update (a loop
+# closure, a burst of keyframes).
+MEASURE_CHUNK = 1024
 # Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
 _SLOT_BITS = 31
 
@@ -578,8 +582,14 @@ class ConsistencyMonitor:
         pairs = _key_slots(keys)
         involved = np.unique(pairs)
         scans = self._scans(involved, poses)
-        with _threads_for(len(pairs)):
-            return pair_measures(scans, np.searchsorted(involved, pairs), keep_largest=self._keep)
+        local = np.searchsorted(involved, pairs)
+        parts = []
+        for start in range(0, len(local), MEASURE_CHUNK):
+            chunk = local[start:start + MEASURE_CHUNK]
+            with _threads_for(len(chunk)):
+                parts.append(pair_measures(scans, chunk, keep_largest=self._keep))
+        return PairMeasures(*(np.concatenate([getattr(part, name) for part in parts])
+                              for name in ('pairs', 'distance_sum', 'point_count', 'largest')))
 
     def _measure(self, changed: np.ndarray, new: np.ndarray) -> int:
         """Measure pairs touching `changed` slots (`new` among them), update the local

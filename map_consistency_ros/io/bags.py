@@ -26,7 +26,7 @@ from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CONSTRAINTS_TYPE, PATH_TYPE, POSE_TYPES, SCAN_TYPE,
                                              constraints_message, path_message, scan_message,
-                                             to_record)
+                                             single_pose_message, to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 STORAGES = ('mcap', 'sqlite3')
@@ -230,6 +230,8 @@ class BagReader:
         """The planar pose of `child` in `parent` from /tf_static, None when the bag lacks it."""
         connections = [connection for connection in self._reader.connections
                        if connection.topic == '/tf_static' and connection.msgtype == TF_TYPE]
+        if not connections:
+            return None  # rosbags reads every topic when given no connections
         wanted = (parent.lstrip('/'), child.lstrip('/'))
         for _, _, message in self._messages(connections):
             for transform in message.transforms:
@@ -252,7 +254,8 @@ def _describe(error: BaseException) -> str:
 # -- writing ---------------------------------------------------------------------------------
 
 class BagWriter:
-    """Writes a rosbag2 (mcap or sqlite3) with /scan, /trajectory and /constraints.
+    """Writes a rosbag2 (mcap or sqlite3) with /scan, the pose topic (/trajectory Paths, or
+    single poses) and /constraints.
 
     Use as a context manager; `path` must not exist. Each write takes its log time in seconds
     (the time the message would have been published). `compress` turns on zstd chunk
@@ -285,7 +288,7 @@ class BagWriter:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         writer.open()
         self._writer = writer
-        for topic, msgtype in ((self.topics.scan, SCAN_TYPE), (self.topics.poses, PATH_TYPE),
+        for topic, msgtype in ((self.topics.scan, SCAN_TYPE),
                                (self.topics.constraints, CONSTRAINTS_TYPE)):
             self._connections[msgtype] = writer.add_connection(topic, msgtype,
                                                                typestore=self.typestore)
@@ -297,6 +300,9 @@ class BagWriter:
             self._writer = None
 
     def _write(self, msgtype: str, time: float, message) -> None:
+        if msgtype not in self._connections:  # the pose topic carries the first pose type
+            self._connections[msgtype] = self._writer.add_connection(
+                self.topics.poses, msgtype, typestore=self.typestore)
         data = self.typestore.serialize_cdr(message, msgtype)
         self._writer.write(self._connections[msgtype], int(round(time * 1e9)), data)
 
@@ -313,6 +319,13 @@ class BagWriter:
         """A Path of poses (M, 3), each PoseStamped stamped with its scan's stamp."""
         self._write(PATH_TYPE, time, path_message(self._types, stamps, poses, frame_id,
                                                   stamp=time))
+
+    def write_single_pose(self, time: float, msgtype: str, stamp: float, pose: np.ndarray,
+                          frame_id: str = 'odom', child_frame_id: str = 'base_link') -> None:
+        """One Odometry, PoseStamped or PoseWithCovarianceStamped on the pose topic (a bag
+        holds one pose type: single poses or Paths)."""
+        self._write(msgtype, time, single_pose_message(self._types, msgtype, stamp, pose,
+                                                       frame_id, child_frame_id))
 
     def write_constraints(self, time: float, rows: np.ndarray) -> None:
         """All pose-graph edges as a Float64MultiArray of rows laid out as CONSTRAINT_FIELDS."""

@@ -503,12 +503,13 @@ class MapConsistencyNode(Node):
         self._wake.set()
 
     @property
-    def retune_running(self) -> bool:
-        return self._tuner is not None and self._tuner.is_alive()
+    def busy(self) -> bool:
+        """Whether a retune or an update is still running (neither can be interrupted)."""
+        return (self._tuner is not None and self._tuner.is_alive()) or self._worker.is_alive()
 
     def destroy_node(self) -> None:
         self.begin_shutdown()
-        self._worker.join(timeout=1.0)
+        self._worker.join(timeout=_SHUTDOWN_ANSWER_SECONDS)
         super().destroy_node()
 
 
@@ -542,16 +543,17 @@ def main(args: list[str] | None = None) -> int:
         answering = threading.Event()
         threading.Timer(_SHUTDOWN_ANSWER_SECONDS, answering.set).start()
         _spin_until(executor, answering)
-        abandoned = node.retune_running
         executor.shutdown(timeout_sec=0.2)
     except ExternalShutdownException:
         pass
     finally:
         if node is not None:
             node.destroy_node()
+            abandoned = node.busy
         rclpy.try_shutdown()
     if abandoned:
-        # the retune's solver threads cannot be interrupted and the interpreter would join them
+        # a retune's solver threads or a long update cannot be interrupted, and the
+        # interpreter would wait for them
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(0)
