@@ -62,7 +62,7 @@ SINGLE_POSES = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
                           history=HistoryPolicy.KEEP_LAST)
 # Parameters every rclpy node has, and per-topic QoS overrides: not ours, not unknown.
 _FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
-_SHUTDOWN_ANSWER_SECONDS = 0.3  # spinning after a stop request, for pending answers to go out
+_SHUTDOWN_ANSWER_SECONDS = 0.2  # spinning after a stop request, for pending answers to go out
 _SHUTTING_DOWN = 'the node is shutting down'
 
 
@@ -543,7 +543,7 @@ def main(args: list[str] | None = None) -> int:
         answering = threading.Event()
         threading.Timer(_SHUTDOWN_ANSWER_SECONDS, answering.set).start()
         _spin_until(executor, answering)
-        executor.shutdown(timeout_sec=0.2)
+        executor.shutdown(timeout_sec=0.1)
     except ExternalShutdownException:
         pass
     finally:

@@ -26,7 +26,9 @@ class NodeSettings:
 
     frame_id: str = parameter('', 'frame of the markers; empty: the trajectory\'s frame, '
                                   'else "map"')
-    scan_queue_depth: int = parameter(200, 'depth of the scan subscription', '', (1, 100_000))
+    scan_queue_depth: int = parameter(
+        1000, 'depth of the scan subscription: scans the middleware holds while the node is '
+        'busy (a loop closure)', '', (1, 100_000))
     scan_reliability: str = parameter(
         'best_effort', 'reliability of the scan subscription; best_effort matches every '
         'publisher (sensor-data QoS), reliable makes reliable publishers resend',
@@ -36,8 +38,9 @@ class NodeSettings:
     diagnostics_period: float = parameter(1.0, 'period of /diagnostics', 's', (0.05, 60.0))
     warning_period: float = parameter(5.0, 'a bad-input warning per topic at most this often',
                                       's', (0.0, 3600.0))
-    max_marker_pairs: int = parameter(200, 'failed pairs whose points are drawn', '',
-                                      (0, 100_000))
+    max_marker_pairs: int = parameter(
+        50, 'failed pairs whose points are drawn, largest statistic first (each point is a '
+        'Python object to build and send)', '', (0, 100_000))
     service_timeout: float = parameter(60.0, 'longest wait of a service for the worker', 's',
                                        (0.1, 3600.0))
 
