@@ -161,3 +161,16 @@ def yaml_document(groups: Sequence[tuple[str, type]], header: str) -> str:
             lines += [f'    # {line}' for line in textwrap.wrap(spec.help, 88)]
             lines.append(f'    {spec.name}: {_yaml_value(spec.default)}')
     return '\n'.join(lines) + '\n'
+
+
+def markdown_table(groups: Sequence[tuple[str, type]]) -> str:
+    """The parameters of `groups` as a Markdown table (name, default, range, unit, meaning)."""
+    lines = ['| name | default | range | unit | meaning |', '|---|---|---|---|---|']
+    for title, settings_class in groups:
+        lines.append(f'| **{title}** | | | | |')
+        for spec in specs(settings_class):
+            allowed = (' \\| '.join(spec.choices) if spec.choices else
+                       f'{spec.bounds[0]:g} .. {spec.bounds[1]:g}' if spec.bounds else '')
+            lines.append(f'| `{spec.name}` | `{_yaml_value(spec.default)}` | {allowed} | '
+                         f'{spec.unit} | {spec.description} |')
+    return '\n'.join(lines) + '\n'

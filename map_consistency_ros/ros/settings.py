@@ -5,6 +5,8 @@ declares them, replay --params-file reads the same file, and config/map_consiste
 their defaults: regenerate it with
 
     python -m map_consistency_ros.ros.settings > config/map_consistency.yaml
+
+and the table of docs/node.md with `--markdown`.
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from dataclasses import dataclass
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.feed import FeedSettings
 from map_consistency_ros.core.monitor import MonitorSettings
-from map_consistency_ros.core.parameters import parameter, specs, yaml_document
+from map_consistency_ros.core.parameters import markdown_table, parameter, specs, yaml_document
 from map_consistency_ros.core.tuning import TuningSettings
 
 RELIABILITIES = ('best_effort', 'reliable')
@@ -63,5 +65,10 @@ def parameter_file() -> str:
     return yaml_document(NODE_GROUPS, _HEADER)
 
 
+def parameter_table() -> str:
+    """The parameter table of docs/node.md."""
+    return markdown_table(NODE_GROUPS)
+
+
 if __name__ == '__main__':
-    sys.stdout.write(parameter_file())
+    sys.stdout.write(parameter_table() if sys.argv[1:] == ['--markdown'] else parameter_file())

@@ -446,3 +446,10 @@ def test_diagnostics_turn_stale_when_inputs_stop(probe, node_process):
                    and s, what='diagnostics STALE')
     assert status.message.startswith('no input for')
     assert node_process.poll() is None
+
+
+def test_parameter_table_of_the_docs_is_generated_from_the_settings():
+    from map_consistency_ros.ros.settings import parameter_table
+    text = (REPO / 'docs' / 'node.md').read_text()
+    begin = text.index('-->\n', text.index('<!-- parameters: generated')) + 4
+    assert text[begin:text.index('<!-- end of parameters -->')] == parameter_table()
