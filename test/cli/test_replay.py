@@ -236,10 +236,12 @@ class Listener:
 def test_publish(round_trip, ros_domain):
     """--publish plays the bag onto ROS 2 topics; a subscriber gets every message intact."""
     from nav_msgs.msg import Path
+    from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import LaserScan
     from std_msgs.msg import Float64MultiArray
     listener = Listener([('/scan', LaserScan, 1000, False), ('/trajectory', Path, 1000, False),
-                         ('/constraints', Float64MultiArray, 10, False)])
+                         ('/constraints', Float64MultiArray, 10, False),
+                         ('/clock', Clock, 1000, False)])
     try:
         assert main(['replay', str(round_trip[0] / 'bag'), '--publish', '--rate', '50',
                      '--quiet']) == 0
@@ -255,7 +257,13 @@ def test_publish(round_trip, ros_domain):
     assert [len(path.poses) for path in paths] == list(range(1, ROUND_TRIP_SCANS + 1))
     with BagReader([round_trip[0] / 'bag']) as bag:
         first = next(record for _, record in bag.records())
+        start, end = bag.start_time, bag.start_time + bag.duration
     np.testing.assert_array_equal(np.asarray(scans[0].ranges, dtype=np.float64), first.ranges)
+    # /clock follows the bag's log time, for nodes with use_sim_time
+    clock = [message.clock.sec + message.clock.nanosec * 1e-9
+             for _, message in listener.received['/clock']]
+    assert clock == sorted(clock) and len(clock) >= ROUND_TRIP_SCANS
+    assert start - 1e-6 <= clock[0] and clock[-1] <= end + 1e-6
 
 
 def record_raw(path, received, types):

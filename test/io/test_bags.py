@@ -189,7 +189,8 @@ def test_unusable_messages_are_reported_not_fatal(tmp_path):
     path = tmp_path / 'bad_content'
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         for time, (topic, msgtype, message) in enumerate([
-                ('/scan', messages.SCAN_TYPE, scan), ('/trajectory', messages.PATH_TYPE, path_message),
+                ('/scan', messages.SCAN_TYPE, scan),
+                ('/trajectory', messages.PATH_TYPE, path_message),
                 ('/constraints', messages.CONSTRAINTS_TYPE, rows)]):
             connection = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(connection, time + 1, store.serialize_cdr(message, msgtype))

@@ -17,7 +17,6 @@ from pathlib import Path as FilePath
 import numpy as np
 import pytest
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Path
 from rclpy.context import Context
@@ -172,8 +171,8 @@ def probe(node_process):
 
 def _publish_scans(probe: Probe, log, model, indices) -> None:
     for index in indices:
-        probe.scan.publish(messages.scan_message(message_class, log.timestamps[index], log.ranges[index],
-                                                     model))
+        probe.scan.publish(messages.scan_message(message_class, log.timestamps[index],
+                                                 log.ranges[index], model))
         time.sleep(0.004)  # a paced stream, as a laser driver publishes
 
 
@@ -268,9 +267,11 @@ def test_bad_input_warns_without_losing_state(probe, intel):
     short.ranges = short.ranges[:90]  # angle fields say 180 beams
     probe.scan.publish(short)
     probe.scan.publish(messages.scan_message(message_class, late + 3.0, np.zeros(0), model))
-    other_model = messages.scan_message(message_class, late + 4.0, log.ranges[0, :90], model)  # 90 beams
+    # 90 beams
+    other_model = messages.scan_message(message_class, late + 4.0, log.ranges[0, :90], model)
     probe.scan.publish(other_model)
-    nan_scan = messages.scan_message(message_class, late + 5.0, np.full(log.ranges.shape[1], np.nan), model)
+    nan_scan = messages.scan_message(message_class, late + 5.0,
+                                     np.full(log.ranges.shape[1], np.nan), model)
     probe.scan.publish(nan_scan)  # valid: every beam is free space
     broken = messages.path_message(message_class, log.timestamps[:2], log.laser_poses[:2], 'map')
     broken.poses[1].pose.orientation.w = 0.0

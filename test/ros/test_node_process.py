@@ -168,3 +168,45 @@ def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, sha
     assert not response.success and response.message == 'the node is shutting down'
     assert process.returncode == 0 and 'Traceback' not in output
     assert seconds < 10.0, output  # bench/bench_node_load.py measures it
+
+
+def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
+    """With use_sim_time, a paused bag (a /clock that stops) is not stale input."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rosgraph_msgs.msg import Clock
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    process = _node(ros_env, '-p', 'use_sim_time:=true', '-p', 'stale_timeout:=1.0',
+                    '-p', 'diagnostics_period:=0.2')
+    client = Client()
+    statuses: list = []
+    try:
+        node = client.node
+        node.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda m: statuses.extend(m.status), 10)
+        clock = node.create_publisher(Clock, '/clock', 10)
+        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
+        deadline = time.monotonic() + TIMEOUT
+        while not statuses and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+        def tick(seconds: float) -> None:
+            clock.publish(Clock(clock=messages.time_message(message_class, seconds)))
+
+        for _ in range(10):  # the node's clock subscription matches at its own pace
+            tick(100.0)
+            time.sleep(0.1)
+        scan.publish(messages.scan_message(message_class, 100.0, log.ranges[0],
+                                           sensor_model(log)))
+        time.sleep(2.5)  # wall time passes, the bag is paused
+        assert statuses[-1].level != DiagnosticStatus.STALE, statuses[-1].message
+        tick(103.0)  # the bag plays on without input
+        deadline = time.monotonic() + TIMEOUT
+        while statuses[-1].level != DiagnosticStatus.STALE and time.monotonic() < deadline:
+            time.sleep(0.05)
+            tick(103.0)
+        assert statuses[-1].message == 'no input for 3.0 s (stale after 1 s)'
+        _stop(process)
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
