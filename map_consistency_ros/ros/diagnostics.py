@@ -26,6 +26,7 @@ class MonitorHealth:
     recent_problem: str  # the last bad message if it is recent, else ''
     seconds_since_input: float | None  # None when nothing arrived yet, on the node's clock
     stale_timeout: float
+    queued_scans: int = 0  # received, not yet applied by the worker (the node is behind)
     lost_scans: int = 0  # scans the node could not process: DDS losses, full queue or buffer
     gap_scans: int = 0  # scans missing from the stamp sequence (an estimate)
     poses_without_scan: int = 0  # keyframe poses older than the newest scan and still unmatched
@@ -84,6 +85,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'input problems': str(health.input_problems),
         'last input problem': health.recent_problem or 'none',
         'seconds since input': _optional(health.seconds_since_input, digits=1),
+        'queued scans': str(health.queued_scans),
         'lost scans': str(health.lost_scans),
         'scans missing from stamps': str(health.gap_scans),
         'poses without scan': str(health.poses_without_scan),

@@ -376,6 +376,7 @@ class MapConsistencyNode(Node):
             last_input, problems, (problem, when) = (self._last_input, self._problems,
                                                      self._last_problem)
             lost = self._dds_lost + self._queue_lost
+            queued = len(self._scans)
         stale_timeout = self._settings.stale_timeout
         return MonitorHealth(
             keyframes=snapshot.keyframe_count, buffered_scans=snapshot.buffered_scans,
@@ -388,7 +389,7 @@ class MapConsistencyNode(Node):
             update_latency=self._latency, phi=self._phi, input_problems=problems,
             recent_problem=problem if time.monotonic() - when <= stale_timeout else '',
             seconds_since_input=None if last_input is None else max(now - last_input, 0.0),
-            stale_timeout=stale_timeout,
+            stale_timeout=stale_timeout, queued_scans=queued,
             lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
             poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
             last_reset=feed.last_reset)
