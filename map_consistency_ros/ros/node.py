@@ -116,6 +116,7 @@ class MapConsistencyNode(Node):
         self._dds_lost = 0  # scans the middleware reported lost
         self._queue_lost = 0  # scans dropped from the node's full queue
         self._retuning = threading.Lock()
+        self._calls = 0  # service calls being answered, for the shutdown to wait for
         self._tuner: threading.Thread | None = None
         self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
         self._marker_updates = MarkerUpdates()  # worker thread only
@@ -404,12 +405,17 @@ class MapConsistencyNode(Node):
 
     def _answer(self, response: Trigger.Response, work: Callable[[], tuple[bool, str]]
                 ) -> Trigger.Response:
+        with self._lock:
+            self._calls += 1
         try:
             response.success, response.message = work()
         except TimeoutError:
             response.success, response.message = False, 'timed out waiting for the monitor'
         except ShuttingDown:
             response.success, response.message = False, _SHUTTING_DOWN
+        finally:
+            with self._lock:
+                self._calls -= 1
         return response
 
     def _check(self) -> tuple[bool, str]:
@@ -503,6 +509,12 @@ class MapConsistencyNode(Node):
         self._wake.set()
 
     @property
+    def answering(self) -> bool:
+        """Whether service calls are still being answered."""
+        with self._lock:
+            return self._calls > 0
+
+    @property
     def busy(self) -> bool:
         """Whether a retune or an update is still running (neither can be interrupted)."""
         return (self._tuner is not None and self._tuner.is_alive()) or self._worker.is_alive()
@@ -515,7 +527,7 @@ class MapConsistencyNode(Node):
 
 def _spin_until(executor: MultiThreadedExecutor, stop: threading.Event) -> None:
     while not stop.is_set() and executor.context.ok():
-        executor.spin_once(timeout_sec=0.1)
+        executor.spin_once(timeout_sec=0.05)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -540,9 +552,12 @@ def main(args: list[str] | None = None) -> int:
         executor.add_node(node)
         _spin_until(executor, stop)
         node.begin_shutdown()
-        answering = threading.Event()
-        threading.Timer(_SHUTDOWN_ANSWER_SECONDS, answering.set).start()
-        _spin_until(executor, answering)
+        # waiting calls fail at once; spin while their answers go out
+        deadline = time.monotonic() + _SHUTDOWN_ANSWER_SECONDS
+        answered = False
+        while time.monotonic() < deadline and (node.answering or not answered):
+            answered = not node.answering
+            executor.spin_once(timeout_sec=0.02)
         executor.shutdown(timeout_sec=0.1)
     except ExternalShutdownException:
         pass
