@@ -24,6 +24,12 @@ HEALTHY = MonitorHealth(keyframes=120, buffered_scans=3, overlapping_pairs=900, 
      'no input for 9.0 s'),
     ({'seconds_since_input': None, 'consistent': None}, DiagnosticStatus.STALE,
      'no scan or trajectory received yet'),
+    ({'lost_scans': 12}, DiagnosticStatus.WARN, 'map consistent (120 scans); 12 scans lost'),
+    ({'poses_without_scan': 3}, DiagnosticStatus.WARN,
+     '3 keyframe poses name scans never received'),
+    ({'consistent': False, 'inconsistent_scans': 7, 'lost_scans': 2}, DiagnosticStatus.ERROR,
+     'scans fail; 2 scans lost'),
+    ({'gap_scans': 40}, DiagnosticStatus.OK, 'map consistent (120 scans)'),  # an estimate
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
@@ -43,3 +49,7 @@ def test_key_values_carry_the_figures():
     unknown = {kv.key: kv.value for kv in map_status(
         dataclasses.replace(HEALTHY, update_latency=None), '/mc').values}
     assert unknown['update latency (ms)'] == 'n/a' and unknown['phi'] == 'n/a'
+    reset = {kv.key: kv.value for kv in map_status(dataclasses.replace(
+        HEALTHY, resets=1, last_reset='~/reset service', queued_scans=4), '/mc').values}
+    assert reset['resets'] == '1' and reset['last reset'] == '~/reset service'
+    assert reset['queued scans'] == '4' and reset['lost scans'] == '0'
