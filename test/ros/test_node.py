@@ -424,8 +424,8 @@ def test_reset_service_and_automatic_reset_on_a_stamp_jump(probe, intel):
     log, model = intel
     response = probe.call(probe.reset)
     assert response.success and response.message == f'reset: {SCANS} keyframes forgotten'
-    _wait(lambda: probe.status_value('scans') == '0', what='no keyframes after the reset')
-    assert probe.status_value('resets') == '1'
+    _wait(lambda: probe.status_value('scans') == '0' and probe.status_value('resets') == '1',
+          what='no keyframes after the reset, counted')
     # the same session again is accepted (no duplicate stamps after a reset)
     stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
     _publish_scans(probe, log, model, range(SCANS))
@@ -438,8 +438,9 @@ def test_reset_service_and_automatic_reset_on_a_stamp_jump(probe, intel):
         time.sleep(0.004)
     _wait(lambda: probe.status_value('resets') == '2', what='an automatic reset')
     assert 'scan stamps jumped back' in probe.status_value('last reset')
-    _wait(lambda: probe.status_value('scans') == '0', what='no keyframes of the old session')
-    assert probe.status_value('buffered scans') == '6'
+    _wait(lambda: probe.status_value('scans') == '0'
+          and probe.status_value('buffered scans') == '6',
+          what='the new session buffered, no keyframes of the old one')
 
 
 def test_diagnostics_turn_stale_when_inputs_stop(probe, node_process):
