@@ -165,12 +165,18 @@ def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
 
 
 def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
-                   parameters: ConsistencyParameters) -> ConsistencyResult:
-    """The pairwise and cascaded tests on already measured pairs (no geometry)."""
+                   parameters: ConsistencyParameters,
+                   robust: tuple[np.ndarray, np.ndarray] | None = None) -> ConsistencyResult:
+    """The pairwise and cascaded tests on already measured pairs (no geometry).
+
+    `robust` are the pairs' trimmed (M_ij, n_ij) (`_robust_sums`) when the caller keeps them
+    per pair as it measures them (the incremental monitor), else they are computed here.
+    """
     scales = np.asarray(scales, dtype=np.float64)
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
-    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    distance_sum, count = (_robust_sums(measures, parameters.trim_largest) if robust is None
+                           else robust)
     tested = count >= parameters.min_points
     pairs = measures.pairs
     pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]

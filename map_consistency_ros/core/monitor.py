@@ -29,8 +29,9 @@ import numba
 import numpy as np
 
 from map_consistency_ros.core import se2
+# _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  evaluate_pairs, local_scales)
+                                                  _robust_sums, evaluate_pairs, local_scales)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
@@ -175,14 +176,18 @@ def _key_slots(keys: np.ndarray) -> np.ndarray:
 
 
 class _PairCache:
-    """Pair measures of slot pairs (low, high) in growable arrays, insertion order."""
+    """Pair measures of slot pairs (low, high) in growable arrays, insertion order, with each
+    pair's trimmed (M_ij, n_ij) of the test, computed once when the pair is measured."""
 
-    def __init__(self, keep_largest: int) -> None:
+    def __init__(self, keep_largest: int, trim: int) -> None:
         self.size = 0
+        self._trim = trim
         self._pairs = np.zeros((64, 2), dtype=np.int64)
         self._distance_sum = np.zeros(64)
         self._point_count = np.zeros(64, dtype=np.int64)
         self._largest = np.zeros((64, keep_largest))
+        self._trimmed_sum = np.zeros(64)
+        self._trimmed_count = np.zeros(64, dtype=np.int64)
 
     @property
     def pairs(self) -> np.ndarray:
@@ -193,7 +198,8 @@ class _PairCache:
         return _pair_keys(self.pairs[:, 0], self.pairs[:, 1])
 
     def _arrays(self) -> tuple[np.ndarray, ...]:
-        return self._pairs, self._distance_sum, self._point_count, self._largest
+        return (self._pairs, self._distance_sum, self._point_count, self._largest,
+                self._trimmed_sum, self._trimmed_count)
 
     def _keep(self, keep: np.ndarray) -> None:
         kept = int(np.count_nonzero(keep))
@@ -217,7 +223,8 @@ class _PairCache:
         end = self.size + keys.size
         if end > self._pairs.shape[0]:
             capacity = max(2 * self._pairs.shape[0], end)
-            self._pairs, self._distance_sum, self._point_count, self._largest = (
+            (self._pairs, self._distance_sum, self._point_count, self._largest,
+             self._trimmed_sum, self._trimmed_count) = (
                 np.concatenate([array, np.zeros((capacity - array.shape[0],) + array.shape[1:],
                                                 dtype=array.dtype)])
                 for array in self._arrays())
@@ -225,6 +232,8 @@ class _PairCache:
         self._distance_sum[self.size:end] = measures.distance_sum
         self._point_count[self.size:end] = measures.point_count
         self._largest[self.size:end] = measures.largest
+        self._trimmed_sum[self.size:end], self._trimmed_count[self.size:end] = _robust_sums(
+            measures, self._trim)
         self.size = end
 
     def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
@@ -239,6 +248,10 @@ class _PairCache:
         return PairMeasures(pairs=pairs, distance_sum=self._distance_sum[:self.size].copy(),
                             point_count=self._point_count[:self.size].copy(),
                             largest=self._largest[:self.size])
+
+    def robust(self) -> tuple[np.ndarray, np.ndarray]:
+        """The trimmed (M_ij, n_ij) of the cached pairs, in the order of `measures`."""
+        return self._trimmed_sum[:self.size].copy(), self._trimmed_count[:self.size].copy()
 
 
 class _Keyframes:
@@ -295,8 +308,9 @@ class ConsistencyMonitor:
         self._buffer: OrderedDict[float, np.ndarray] = OrderedDict()
         self._keyframes: _Keyframes | None = None
         self._index = ScanExtentIndex(self.settings.cell_size)
-        self._current = _PairCache(self._keep)
-        self._local = _PairCache(self._keep)
+        trim = self.parameters.trim_largest
+        self._current = _PairCache(self._keep, trim)
+        self._local = _PairCache(self._keep, trim)
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
         self._result: ConsistencyResult | None = None
@@ -406,8 +420,9 @@ class ConsistencyMonitor:
         """Measure every pair again from scratch (the incremental caches are rebuilt)."""
         start = time.perf_counter()
         self._index = ScanExtentIndex(self.settings.cell_size)
-        self._current = _PairCache(self._keep)
-        self._local = _PairCache(self._keep)
+        trim = self.parameters.trim_largest
+        self._current = _PairCache(self._keep, trim)
+        self._local = _PairCache(self._keep, trim)
         slots = np.arange(self.keyframe_count)
         measured = self._measure(slots, slots) if slots.size else 0
         self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
@@ -614,7 +629,7 @@ class ConsistencyMonitor:
         ranks = None if np.array_equal(order, np.arange(keyframes.count)) else rank_of_slot
         scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
         self._result = evaluate_pairs(self._current.measures(ranks), scales, keyframes.count,
-                                      self.parameters)
+                                      self.parameters, robust=self._current.robust())
         return measured
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
