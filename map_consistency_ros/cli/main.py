@@ -6,6 +6,7 @@ Each subcommand lives in its own module of this package with `add_arguments(pars
 import argparse
 import importlib
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
 from map_consistency_ros.io.errors import InputError
 
@@ -22,6 +23,13 @@ SUBCOMMANDS = [
 ]
 
 
+def _version() -> str:
+    try:
+        return version('map_consistency_ros')
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return 'unknown (not installed)'
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='map-consistency',
@@ -31,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
                '--params-file config/map_consistency.yaml (topics, services, parameters: '
                'docs/node.md). Every subcommand takes --help.',
     )
+    parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
         module = importlib.import_module(f'map_consistency_ros.cli.{module_name}')

@@ -25,7 +25,7 @@ points are grouped into changed places and reported. `strict` keeps the paper's 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
@@ -36,6 +36,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   inconsistent_endpoints, pair_endpoints,
                                                   robust_statistic)
 from map_consistency_ros.core.measure import pair_measures, point_distances
+from map_consistency_ros.core.parameters import parameter, specs
 from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
                                                    register_submaps, surface_points)
 from map_consistency_ros.core.scan_geometry import ScanSet
@@ -49,47 +50,36 @@ _CLASS_CODE = {name: code for code, name in enumerate(PAIR_CLASSES)}
 class ExplanationSettings:
     """How failed pairs are explained and what the map may bear (defaults: docs/verdict.md)."""
 
-    misalignment_tolerance: float = field(default=0.1, metadata={
-        'description': 'misalignments moving end points further (root mean square) make the '
-                       'map inconsistent',
-        'range': (0.0, 10.0), 'unit': 'm'})
-    strict: bool = field(default=False, metadata={
-        'description': "the paper's verdict: every scan failing the cascaded test fails the map",
-        'range': None, 'unit': ''})
-    block: int = field(default=5, metadata={
-        'description': 'consecutive scans registered as one rigid submap',
-        'range': (1, 1000), 'unit': 'scans'})
-    margin: int = field(default=3, metadata={
-        'description': 'scans added on each side of a block to its submap',
-        'range': (0, 1000), 'unit': 'scans'})
-    max_translation: float = field(default=0.5, metadata={
-        'description': 'largest correction trusted as a local misalignment',
-        'range': (0.01, 100.0), 'unit': 'm'})
-    max_rotation_deg: float = field(default=10.0, metadata={
-        'description': 'largest rotation trusted as a local misalignment',
-        'range': (0.1, 180.0), 'unit': 'deg'})
-    significance: float = field(default=0.001, metadata={
-        'description': 'level of the chi-square test that a correction differs from zero',
-        'range': (1e-12, 0.5), 'unit': ''})
-    min_registrations: int = field(default=3, metadata={
-        'description': 'independent submap registrations that must agree on a misalignment',
-        'range': (1, 1000), 'unit': ''})
-    gross_fraction: float = field(default=0.5, metadata={
-        'description': 'a scan whose pairs fail unexplained more often than this (binomial '
-                       'test) sees a gross error, not changes',
-        'range': (0.01, 0.99), 'unit': ''})
-    change_depth: float = field(default=3.0, metadata={
-        'description': 'end points this many pair scales inside free space mark a change',
-        'range': (0.0, 100.0), 'unit': 'scales'})
-    change_cell: float = field(default=0.5, metadata={
-        'description': 'changed end points closer than this form one changed place',
-        'range': (0.01, 100.0), 'unit': 'm'})
+    misalignment_tolerance: float = parameter(
+        0.1, 'misalignments moving end points further (root mean square) make the map '
+        'inconsistent', 'm', (0.0, 10.0))
+    strict: bool = parameter(
+        False, "the paper's verdict instead: every scan failing its cascaded test fails the map")
+    block: int = parameter(5, 'consecutive scans registered as one rigid submap', 'scans',
+                           (1, 1000))
+    margin: int = parameter(3, 'scans added on each side of a block to its submap', 'scans',
+                            (0, 1000))
+    max_translation: float = parameter(0.5, 'largest correction trusted as a local misalignment',
+                                       'm', (0.01, 100.0))
+    max_rotation_deg: float = parameter(10.0, 'largest rotation trusted as a local misalignment',
+                                        'deg', (0.1, 180.0))
+    significance: float = parameter(
+        0.001, 'level of the chi-square test that a correction differs from zero', '',
+        (1e-12, 0.5))
+    min_registrations: int = parameter(
+        3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
+    gross_fraction: float = parameter(
+        0.5, 'a scan whose pairs fail unexplained more often than this (binomial test) sees a '
+        'gross error, not changes', '', (0.01, 0.99))
+    change_depth: float = parameter(
+        3.0, 'end points this many pair scales inside free space mark a change', 'scales',
+        (0.0, 100.0))
+    change_cell: float = parameter(0.5, 'changed end points closer than this form one place',
+                                   'm', (0.01, 100.0))
 
     def __post_init__(self) -> None:
-        for name, value in self.__dict__.items():
-            bounds = self.__dataclass_fields__[name].metadata['range']
-            if bounds is not None and not (bounds[0] <= value <= bounds[1]):
-                raise ValueError(f'{name} must be in [{bounds[0]}, {bounds[1]}], got {value}')
+        for spec in specs(ExplanationSettings):
+            spec.check(getattr(self, spec.name))
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -187,8 +177,9 @@ def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
            scan_count: int) -> tuple[np.ndarray, np.ndarray]:
     """Registration tasks (r0, r1, q0, q1) per block pair, and the task of every pair.
 
-    Submaps of blocks that are close in time would share scans: there the two scans of the
-    pair are registered alone.
+    Submaps of blocks close in time would share scans: there each pair gets submaps of its
+    own that reach away from each other (the earlier scan and those before it, the later
+    scan and those after it), so neither straddles the stretch between them.
     """
     blocks = pairs // settings.block
     near = blocks[:, 1] - blocks[:, 0] <= 1 + (2 * settings.margin) // max(settings.block, 1)
@@ -197,14 +188,15 @@ def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
     tasks = np.zeros((unique.size, 4), dtype=np.int64)
     first_pair = np.zeros(unique.size, dtype=np.int64)
     first_pair[task_of_pair[::-1]] = np.arange(len(pairs))[::-1]
+    reach = settings.margin + settings.block // 2
     for task, pair in enumerate(first_pair):
         i, j = pairs[pair]
         if near[pair]:
-            tasks[task] = (i, i + 1, j, j + 1)
+            tasks[task] = (max(i - reach, 0), i + 1, j, min(j + reach + 1, scan_count))
         else:
             tasks[task] = (*_submap(int(blocks[pair, 0]), settings, scan_count),
                            *_submap(int(blocks[pair, 1]), settings, scan_count))
-    return tasks, task_of_pair
+    return tasks, task_of_pair.reshape(-1)
 
 
 def _apply(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   average_inconsistency, check_consistency)
 from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
 from map_consistency_ros.core.measure import pair_measures
+from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import candidate_pairs
@@ -40,13 +41,14 @@ class TuningSettings:
     size, so memory is rarely the limit.
     """
 
-    phi_min: float = 1e-6
-    phi_max: float = 16.0
-    grid_steps: int = 40
-    tolerance: float = 1e-4
-    sqrt_grid: bool = True
-    iterations: int = 50
-    workers: int = 0
+    phi_min: float = parameter(1e-6, 'smallest DCS Phi of the search', '', (1e-12, 1e6))
+    phi_max: float = parameter(16.0, 'largest DCS Phi of the search', '', (1e-9, 1e9))
+    grid_steps: int = parameter(40, 'grid points of the Phi search', '', (3, 10_000))
+    tolerance: float = parameter(1e-4, 'the Phi search stops when its bracket is narrower', '',
+                                 (1e-12, 1e3))
+    sqrt_grid: bool = parameter(True, 'space the grid evenly in sqrt(Phi), else in Phi')
+    iterations: int = parameter(50, 'solver iterations per DCS solve', '', (1, 10_000))
+    workers: int = parameter(0, 'DCS solves at once (0: one per CPU, at most 4)', '', (0, 64))
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:

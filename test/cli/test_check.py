@@ -91,7 +91,7 @@ def test_missing_file_and_bad_option_exit_2(tmp_path, room_log, capsys):
     assert 'absent.log: no such file' in capsys.readouterr().err
     path, _, _ = room_log()
     assert main(['check', str(path), '--alpha', '1.5']) == 2
-    assert 'alpha must be in (0, 1)' in capsys.readouterr().err
+    assert 'alpha: 1.5 is outside' in capsys.readouterr().err
 
 
 def test_console_script_prints_no_traceback(tmp_path):
