@@ -333,6 +333,11 @@ def _regions(scans: ScanSet, pairs: np.ndarray, bad: np.ndarray, codes: np.ndarr
                 correction[None], scans.endpoints[moved].reshape(1, -1, 2),
                 scans.valid[moved].reshape(1, -1))[0])
         else:
+            # beyond registration: a displaced stretch (at least a block of scans) that several
+            # independent registrations fail on
+            if (np.unique(task_of_pair[rows]).size < settings.min_registrations
+                    or moved.size < settings.block):
+                continue
             correction = np.full(3, np.nan)
             spread = np.full(3, np.nan)
             displacement = math.nan
@@ -471,8 +476,11 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     # Changes are local: a scan most of whose overlaps fail beyond any small correction sees
     # a gross error, which must never pass as a change.
     gross = _cascaded(result, pairs, unexplained, settings.gross_fraction)
-    flagged = _cascaded(result, pairs, misaligned) | gross
-    bad = misaligned | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
+    # A correction beyond any plausible local one that still leaves the pair failing is no
+    # change either: a stretch displaced further than registration reaches.
+    beyond = codes == _CLASS_CODE[UNREGISTERED]
+    flagged = _cascaded(result, pairs, misaligned | beyond) | gross
+    bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
     misalignments = _regions(scans, pairs, bad, codes, transforms,
                              registrations.covariances[task_of_pair], task_of_pair, flagged,
                              settings)

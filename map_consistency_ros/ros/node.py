@@ -404,8 +404,9 @@ class MapConsistencyNode(Node):
         assessment, judged = self._verdict
         content = assessment_report(assessment, judged.stamps)
         content.pop('scans')  # per-scan arrays: the CLI's JSON has room for them, a topic not
-        content.update(dict(assessment.result.summary(), update_latency_s=self._latency,
-                            phi=self._phi, timing=self._timing,
+        content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
+                            paper_consistent=assessment.result.consistent,
+                            update_latency_s=self._latency, phi=self._phi, timing=self._timing,
                             lost_scans=self._health().lost_scans,
                             keyframes=snapshot.keyframe_count,
                             judged_keyframes=judged.keyframe_count))

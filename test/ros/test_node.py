@@ -30,6 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.explanation import explain
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.io import messages
@@ -310,15 +311,16 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     log, model = intel
     stamps = log.timestamps[:SCANS]
     poses = _wrong_loop_closure(log.laser_poses[:SCANS], 50)
-    oracle = check_consistency(
-        ScanSet.from_ranges(log.ranges[:SCANS], poses, model),
-        reference_scans=ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS], model))
+    placed = ScanSet.from_ranges(log.ranges[:SCANS], poses, model)
+    oracle = explain(placed, check_consistency(
+        placed,
+        reference_scans=ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS], model)))
     assert not oracle.consistent
     # a burst, as an optimizer iterating: only the last estimate counts
     for amount in np.linspace(0.1, 0.9, 9):
         _publish_path(probe, stamps, _wrong_loop_closure(log.laser_poses[:SCANS], 50, amount))
     _publish_path(probe, stamps, poses)
-    expected_red = np.flatnonzero(oracle.inconsistent).tolist()
+    expected_red = np.flatnonzero(oracle.flagged).tolist()
 
     def red_keyframes():
         shown = _marker_state(probe.markers)
@@ -327,15 +329,22 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
         return sorted(m.id for m in _keyframe_markers(probe.markers) if m.color.r > m.color.g)
 
     _wait(lambda: red_keyframes() == expected_red, what='red markers of the final estimate')
-    _wait(lambda: probe.status_value('inconsistent scans') == str(len(expected_red)),
+    _wait(lambda: probe.status_value('misaligned scans') == str(len(expected_red)),
           what='the final count in the diagnostics')
     status = probe.latest_status()
     assert status.level == DiagnosticStatus.ERROR
-    assert status.message.startswith('map inconsistent')
+    assert status.message.startswith('map INCONSISTENT: 1 misaligned region')
+    assert probe.status_value('inconsistent scans') == str(int(oracle.result.inconsistent.sum()))
     assert probe.consistent[-1] is False
     report = json.loads(probe.reports[-1])
-    assert report['consistent'] is False
-    assert report['inconsistent_stamps'] == pytest.approx(stamps[oracle.inconsistent].tolist())
+    assert report['consistent'] is False and report['paper_consistent'] is False
+    assert report['summary_line'] == oracle.summary_line()
+    assert report['misaligned_scans'] == pytest.approx(stamps[oracle.flagged].tolist())
+    (region,) = report['misalignments']
+    assert set(region) >= {'scans', 'reference_scans', 'dx_m', 'dy_m', 'dtheta_deg',
+                           'displacement_m'}
+    assert min(region['scans']) >= stamps[50] > max(region['reference_scans'])
+    assert report['changes'] and set(report['changes'][0]) >= {'scans', 'x', 'y', 'points'}
     assert len(probe.optimized) == 0
 
 
@@ -405,7 +414,7 @@ def test_retune_rejects_the_wrong_loop_closure(probe, intel):
     response = _wait(lambda: (r := probe.call(probe.retune)).message.startswith('Phi*') and r,
                      timeout=60.0, what='a retune on the published graph')
     assert response.success
-    assert 'optimized map consistent' in response.message
+    assert 'optimized map CONSISTENT' in response.message
     start, end = probe.call_window
     during = sum(start < t < end for t in probe.diagnostics_arrivals)
     assert during >= int((end - start) / 0.2) // 2, 'the node kept publishing while tuning'
