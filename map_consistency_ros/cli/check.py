@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import options, plots, report
+from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyResult, check_consistency
 from map_consistency_ros.core.scan_geometry import ScanSet
@@ -71,6 +71,9 @@ def load_scans(args: argparse.Namespace) -> tuple[carmen.CarmenLog, np.ndarray, 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, result: ConsistencyResult,
                   details: dict, scan_ids: np.ndarray | None = None) -> None:
     """The report, figure and pairs CSV the user asked for."""
+    if args.plot or args.explain:
+        # matplotlib costs half a second of start-up: only the runs that draw pay it.
+        from map_consistency_ros.cli import plots
     if args.report:
         write = report.result_report(result, scan_ids)
         write.update(details)
@@ -91,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     log, selected, scans = load_scans(args)
     started = time.perf_counter()
     with ProgressBar('checking pairs', enabled=not args.quiet) as progress:
-        result = check_consistency(scans, parameters, progress=progress)
+        # Without a bar the pairs go to the kernel in one piece, not in chunks.
+        result = check_consistency(scans, parameters, progress=None if args.quiet else progress)
     elapsed = time.perf_counter() - started
     print(report.format_summary(result, str(args.log), selected))
     print(f'  test time             {elapsed:.2f} s')

@@ -32,5 +32,5 @@ def run(args: argparse.Namespace) -> int:
     replay = ['replay', str(demo_bag_path()), '--report', str(out / 'report.json'),
               '--plot', str(out / 'map.png'), '--stats-plot', str(out / 'psi.png'),
               '--pairs-csv', str(out / 'pairs.csv')]
-    replay_args = cli_main.build_parser().parse_args(replay + (['--quiet'] if args.quiet else []))
+    replay_args = cli_main.build_parser('replay').parse_args(replay + (['--quiet'] if args.quiet else []))
     return replay_args.run(replay_args)
