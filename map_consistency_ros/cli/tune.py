@@ -23,7 +23,7 @@ import argparse
 import time
 from pathlib import Path
 
-from map_consistency_ros.cli import options, plots, report
+from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.scan_geometry import SensorModel
@@ -32,8 +32,6 @@ from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningResult,
 from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
-
-plt = plots.plt  # pyplot with the backend plots chose
 
 EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 _DEFAULTS = TuningSettings()
@@ -60,6 +58,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='grid points over sqrt(Phi) (default %(default)s)')
     search.add_argument('--tolerance', type=float, default=_DEFAULTS.tolerance,
                         help='width of the final Phi bracket (default %(default)s)')
+    search.add_argument('--flat-tolerance', type=float, default=_DEFAULTS.flat_tolerance,
+                        help='stop refining once two M values agree within this fraction '
+                             '(default %(default)s; 0 refines to --tolerance)')
+    search.add_argument('--move-tolerance', type=float, default=_DEFAULTS.move_tolerance,
+                        metavar='METRES',
+                        help='re-measure a pair only when its end points moved more than this '
+                             'relative to each other (default %(default)s)')
     search.add_argument('--linear-grid', action='store_true', help='grid evenly in Phi')
     search.add_argument('--iterations', type=int, default=_DEFAULTS.iterations,
                         help='DCS solver iterations per Phi (default %(default)s)')
@@ -109,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
             phi_min=args.phi_min, phi_max=args.phi_max, grid_steps=args.grid_steps,
             tolerance=args.tolerance, sqrt_grid=not args.linear_grid,
             iterations=args.iterations, workers=args.workers,
+            flat_tolerance=args.flat_tolerance, move_tolerance=args.move_tolerance,
             parameters=options.parameters_from_args(args))
     except ValueError as error:
         raise InputError('options', str(error)) from None
@@ -180,7 +186,9 @@ def _report(source: str, result: TuningResult, model: SensorModel, baseline, bas
 
 def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
                   source: str) -> None:
-    figure, ax = plt.subplots(figsize=(5, 3.5))
+    # matplotlib costs half a second of start-up: only the runs that draw pay it.
+    from map_consistency_ros.cli import plots
+    figure, ax = plots.plt.subplots(figsize=(5, 3.5))
     ax.plot(result.profile_phi, result.profile_value, '.-', lw=0.8, ms=3, c='tab:blue')
     ax.axvline(result.phi, c='red', lw=1, label=f'Phi* = {result.phi:.4g}')
     ax.set_xscale('function', functions=(lambda x: x ** 0.5, lambda x: x ** 2))
@@ -195,7 +203,8 @@ def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
 
 def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses, baseline_test,
                result: TuningResult) -> None:
-    figure, axes = plt.subplots(1, 2, figsize=(14, 7))
+    from map_consistency_ros.cli import plots
+    figure, axes = plots.plt.subplots(1, 2, figsize=(14, 7))
     plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
     plots.plot_map(axes[1], profile.scans_at(result.poses), result.consistency,
                    f'Phi* = {result.phi:.4g}')
