@@ -167,8 +167,8 @@ def edge_residuals(graph: PoseGraph, poses: np.ndarray | None = None
 
 def optimize(graph: PoseGraph, phi: float | None, iterations: int = 50,
              step_tolerance: float = 1e-10, initial_damping: float = 1e-6,
-             system: SparseSystem | None = None
-             ) -> OptimizationResult:
+             system: SparseSystem | None = None, relative_tolerance: float = 0.0,
+             absolute_tolerance: float = 0.0) -> OptimizationResult:
     """Optimize `graph` from its poses with DCS parameter `phi` (None: plain least squares).
 
     Levenberg-Marquardt on the robust cost: each iteration reweights loop closures by s^2 at
@@ -177,7 +177,9 @@ def optimize(graph: PoseGraph, phi: float | None, iterations: int = 50,
     if the robust cost does not rise. Converged when the largest step component is below
     `step_tolerance`, or when no damping lets the cost fall any more (a cost decrease test
     alone stops too early: along weakly constrained directions the cost is flat to rounding
-    while the poses still move by 1e-6).
+    while the poses still move by 1e-6). GTSAM's criteria are there when asked for: converged
+    also when an accepted step lowers the cost by at most `relative_tolerance` of it or by at
+    most `absolute_tolerance` (on this cost, twice GTSAM's error; 0 leaves a criterion off).
     Fixed vertices stay put; if none is fixed the first vertex is held as the gauge.
     A component of the graph without a fixed vertex is held near its initial guess by the
     damping alone. Raises ValueError for a non-positive phi or singular normal equations
@@ -210,7 +212,10 @@ def optimize(graph: PoseGraph, phi: float | None, iterations: int = 50,
             damping *= 10.0
             if damping > 1e8:
                 return _result(graph, poses, chi2, iteration, True, cost, phi)
-        converged = np.abs(step).max() < step_tolerance
+        decrease = cost - new_cost
+        converged = bool(np.abs(step).max() < step_tolerance
+                         or (relative_tolerance > 0.0 and decrease <= relative_tolerance * cost)
+                         or (absolute_tolerance > 0.0 and decrease <= absolute_tolerance))
         poses, (errors, chi2, jac_from, jac_to), cost = candidate, new, new_cost
         damping = max(damping / 10.0, 1e-12)
     return _result(graph, poses, chi2, iteration, converged, cost, phi)
