@@ -42,7 +42,9 @@ def test_average_inconsistency_matches_the_naive_measure_at_an_independent_solve
     graph, ranges, model, offset = intel_excerpt
     profile = InconsistencyProfile(graph, ranges, model, offset, SEARCH)
     evaluation = profile.evaluate(1.0)
-    solution = optimize(graph, 1.0, iterations=SEARCH.iterations)
+    solution = optimize(graph, 1.0, iterations=SEARCH.iterations,
+                        relative_tolerance=SEARCH.relative_tolerance,
+                        initial_damping=SEARCH.initial_damping)
     np.testing.assert_array_equal(evaluation.optimization.poses, solution.poses)
     scans = profile.scans_at(solution.poses)
     naive = pair_measures_naive(scans, candidate_pairs(scans.extents), keep_largest=1)
@@ -108,7 +110,8 @@ def test_grids_are_even_in_sqrt_phi_or_in_phi():
 @pytest.mark.parametrize('settings', [dict(phi_min=0.0), dict(phi_min=2.0, phi_max=1.0),
                                       dict(grid_steps=2), dict(tolerance=0.0),
                                       dict(iterations=0), dict(workers=-1),
-                                      dict(flat_tolerance=-0.1), dict(move_tolerance=-1.0)])
+                                      dict(flat_tolerance=-0.1), dict(move_tolerance=-1.0),
+                                      dict(relative_tolerance=-1e-9), dict(initial_damping=0.0)])
 def test_invalid_settings_are_refused(settings):
     with pytest.raises(ValueError):
         TuningSettings(**settings)
