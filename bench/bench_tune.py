@@ -8,13 +8,15 @@ tolerance 1e-4) as fresh processes and reads their summaries: this tree with its
 tree with the exhaustive search (`--flat-tolerance 0 --move-tolerance 0`: every pair measured on
 every map, golden section down to the tolerance) and, with `--reference-tree`, another checkout
 (e.g. the commit before a change) in the same run. The tuning time excludes start-up, graph
-reading and the Phi = 1 comparison the command prints after the search.
+reading and the Phi = 1 comparison the command prints after the search; the process CPU
+seconds include them.
 """
 from __future__ import annotations
 
 import argparse
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -31,15 +33,21 @@ FIELDS = {'phi': r'Phi\* = (\S+),', 'verdict': r'map at Phi\* (\w+)',
 
 
 def tune_summary(tree: Path, graph: Path, extra: list[str]) -> dict[str, str]:
-    """Run `tune GRAPH` with `tree`'s package and return the figures of its summary."""
+    """Run `tune GRAPH` with `tree`'s package and return the figures of its summary, with the
+    CPU seconds of the whole process (all threads: steadier than wall on a shared machine)."""
     environment = dict(os.environ, PYTHONPATH=str(tree))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     run = subprocess.run([sys.executable, '-m', 'map_consistency_ros.cli.main', 'tune',
                           str(graph), '--quiet', *extra], env=environment, cwd=tree,
                          capture_output=True, text=True, check=False)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     found = {name: re.search(pattern, run.stdout) for name, pattern in FIELDS.items()}
     if not all(found.values()):
         raise RuntimeError(f'tune in {tree} failed:\n{run.stdout}\n{run.stderr}')
-    return {name: match.group(1) for name, match in found.items()}
+    summary = {name: match.group(1) for name, match in found.items()}
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    summary['cpu'] = f'{cpu:.1f}'
+    return summary
 
 
 def main() -> None:
@@ -63,11 +71,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / 'intel.g2o'
         write_g2o(path, content)
-        print(f'{"run":<36}{"tuning s":>10}{"evals":>7}{"Phi*":>10}{"M(Phi*)":>10}'
-              f'{"flagged":>9}  verdict')
+        print(f'{"run":<36}{"tuning s":>10}{"process cpu s":>15}{"evals":>7}{"Phi*":>10}'
+              f'{"M(Phi*)":>10}{"flagged":>9}  verdict')
         for label, tree, extra in runs:
             summary = tune_summary(tree, path, extra)
-            print(f'{label[-36:]:<36}{summary["seconds"]:>10}{summary["evaluations"]:>7}'
+            print(f'{label[-36:]:<36}{summary["seconds"]:>10}{summary["cpu"]:>15}'
+                  f'{summary["evaluations"]:>7}'
                   f'{summary["phi"]:>10}{summary["m_star"]:>10}{summary["flagged"]:>9}  '
                   f'{summary["verdict"]}')
 
