@@ -105,6 +105,7 @@ class SparseSystem:
                            minlength=self.size)
 
     def max_diagonal(self, hessian: np.ndarray) -> float:
+        """The largest diagonal entry of the matrix with CSC data `hessian` (the damping scale)."""
         return float(hessian[self._diagonal].max())
 
     def solve(self, hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
