@@ -5,7 +5,7 @@
 Builds the graph as `tune --build ... --false-loops 100 --corrupt-guess` does, saves it as g2o
 with its laser data, then runs `map-consistency tune GRAPH.g2o` (default search: 40 grid steps,
 tolerance 1e-4) as fresh processes and reads their summaries: this tree with its defaults, this
-tree with the exhaustive search (`--flat-tolerance 0 --move-tolerance 0`: every pair measured on
+tree with the exhaustive search (`--flat-tolerance 0 --reuse-tolerance 0`: every pair measured on
 every map, golden section down to the tolerance) and, with `--reference-tree`, another checkout
 (e.g. the commit before a change) in the same run. The tuning time excludes start-up, graph
 reading and the Phi = 1 comparison the command prints after the search; the process CPU
@@ -66,7 +66,7 @@ def main() -> None:
           f'corrupted initial guess; target <= 10 s')
     runs = [('this tree', TREE, []),
             ('this tree, exhaustive search', TREE, ['--flat-tolerance', '0',
-                                                    '--move-tolerance', '0'])]
+                                                    '--reuse-tolerance', '0'])]
     runs += [(str(tree), tree.resolve(), []) for tree in args.reference_tree]
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / 'intel.g2o'

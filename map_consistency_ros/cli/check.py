@@ -19,7 +19,7 @@ import numpy as np
 
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core.consistency import ConsistencyResult, check_consistency
+from map_consistency_ros.core.explanation import Assessment, check_map
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
@@ -34,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'outputs stay record positions; default %(default)s)')
     options.add_sensor_arguments(parser)
     options.add_test_arguments(parser)
+    options.add_verdict_arguments(parser)
     add_output_arguments(parser)
 
 
@@ -68,36 +69,42 @@ def load_scans(args: argparse.Namespace) -> tuple[carmen.CarmenLog, np.ndarray, 
     return log, selected, scans
 
 
-def write_outputs(args: argparse.Namespace, scans: ScanSet, result: ConsistencyResult,
+def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
                   details: dict, scan_ids: np.ndarray | None = None) -> None:
     """The report, figure and pairs CSV the user asked for."""
     if args.plot or args.explain:
         # matplotlib costs half a second of start-up: only the runs that draw pay it.
         from map_consistency_ros.cli import plots
     if args.report:
-        write = report.result_report(result, scan_ids)
+        write = report.assessment_report(assessment, scan_ids)
         write.update(details)
         report.write_json(args.report, write)
     if args.plot:
-        plots.save_map_figure(args.plot, scans, result, title=str(details.get('source', '')))
+        plots.save_map_figure(args.plot, scans, assessment, title=str(details.get('source', '')))
     if args.pairs_csv:
-        report.write_pairs_csv(args.pairs_csv, result, scan_ids)
+        report.write_pairs_csv(args.pairs_csv, assessment.result, scan_ids)
     if args.explain:
-        plots.save_pairs_figure(args.explain, scans, result)
+        plots.save_pairs_figure(args.explain, scans, assessment.result)
+
+
+def verdict_settings(args: argparse.Namespace):
+    """The paper's parameters and the explanation settings; bad values become InputError."""
+    try:
+        return options.parameters_from_args(args), options.explanation_from_args(args)
+    except ValueError as error:
+        raise InputError('options', str(error)) from None
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        parameters = options.parameters_from_args(args)
-    except ValueError as error:
-        raise InputError('options', str(error)) from None
+    parameters, explanation = verdict_settings(args)
     log, selected, scans = load_scans(args)
     started = time.perf_counter()
     with ProgressBar('checking pairs', enabled=not args.quiet) as progress:
         # Without a bar the pairs go to the kernel in one piece, not in chunks.
-        result = check_consistency(scans, parameters, progress=None if args.quiet else progress)
+        assessment = check_map(scans, parameters, explanation,
+                               progress=None if args.quiet else progress)
     elapsed = time.perf_counter() - started
-    print(report.format_summary(result, str(args.log), selected))
+    print(report.format_summary(assessment, str(args.log), selected))
     print(f'  test time             {elapsed:.2f} s')
     model = scans.model
     details = {
@@ -110,9 +117,9 @@ def run(args: argparse.Namespace) -> int:
         'runtime_seconds': elapsed,
         'every': args.every,
     }
-    write_outputs(args, scans, result, details, selected)
+    write_outputs(args, scans, assessment, details, selected)
     for label, path in (('report', args.report), ('figure', args.plot),
                         ('pairs', args.pairs_csv), ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if result.consistent else EXIT_INCONSISTENT
+    return EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT

@@ -35,6 +35,7 @@ import numpy as np
 from map_consistency_ros.cli import options
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core import se2
+from map_consistency_ros.core.posegraph import information_upper
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io import carmen, g2o
 from map_consistency_ros.io.bags import STORAGES, BagTopics, BagWriter
@@ -159,8 +160,7 @@ def graph_keyframes(path: Path) -> Keyframes:
     log = replace(laser, ranges=ranges, laser_poses=laser_poses, robot_poses=graph.poses,
                   timestamps=laser.timestamps[scan_of_vertex],
                   line_numbers=laser.line_numbers[scan_of_vertex])
-    rows, cols = np.triu_indices(3)
-    edges = np.column_stack([graph.measurements, graph.information[:, rows, cols]])
+    edges = np.column_stack([graph.measurements, information_upper(graph.information)])
     return Keyframes(log=log, edge_from=graph.edge_from, edge_to=graph.edge_to, edges=edges)
 
 

@@ -1,19 +1,37 @@
-"""Replay the demo bag bundled with the package through the live monitor.
+"""Replay the demo bag bundled with the package through the live monitor, then break it.
 
 The demo bag holds the first 290 scans of the Intel Research Lab with their corrected poses
 (/scan, /trajectory, /constraints, as a SLAM stack publishes them). The replay feeds them to
 the same monitor the node runs and writes report.json, map.png, psi.png and pairs.csv into
---output.
+--output: the corrected map passes.
+
+Then the demo shows the other side: one wrong loop closure is added to the bag's pose graph
+(keyframe 260 seen from keyframe 30 0.6 m and 4 degrees off its true place, as a false place
+recognition would report it), the graph is optimized by least squares as a SLAM back-end
+would, and the optimized trajectory goes to the same monitor as the back-end's next estimate.
+The verdict names the misaligned region and its size; its report and map go to
+--output/wrong_loop_closure/.
 """
 from __future__ import annotations
 
 import argparse
+import math
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
+
 from map_consistency_ros.cli import main as cli_main
+from map_consistency_ros.cli import check, replay, report
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.dcs import optimize
+from map_consistency_ros.core.explanation import explain
+from map_consistency_ros.core.monitor import ConsistencyMonitor
+from map_consistency_ros.core.posegraph import PoseGraph
 
 DEMO_BAG = 'intel_demo.mcap'
+# the wrong loop closure: (from keyframe, to keyframe), error (metres, metres, degrees)
+WRONG_LOOP = ((30, 260), (0.6, 0.0, 4.0))
 
 
 def demo_bag_path() -> Path:
@@ -27,10 +45,57 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
+def with_wrong_loop_closure(graph: PoseGraph, keyframes: tuple[int, int],
+                            error: tuple[float, float, float]) -> PoseGraph:
+    """`graph` plus one loop closure between `keyframes` whose measurement is their current
+    relative pose composed with `error` (dx, dy metres, dtheta degrees), weighted like the
+    graph's first edge."""
+    start, end = keyframes
+    true = se2.relative(graph.poses[start], graph.poses[end])
+    wrong = se2.compose(true, np.array([error[0], error[1], math.radians(error[2])]))
+    return PoseGraph(poses=graph.poses, edge_from=np.r_[graph.edge_from, start],
+                     edge_to=np.r_[graph.edge_to, end],
+                     measurements=np.vstack([graph.measurements, wrong]),
+                     information=np.concatenate([graph.information, graph.information[:1]]),
+                     fixed=graph.fixed)
+
+
+def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) -> int:
+    """Close the wrong loop, give the monitor the optimized estimate, report its verdict."""
+    graph = monitor.pose_graph()
+    if graph is None:
+        raise RuntimeError('the demo bag carries no constraints')
+    (start, end), error = WRONG_LOOP
+    solution = optimize(with_wrong_loop_closure(graph, (start, end), error), None, iterations=100)
+    stamps = monitor.snapshot().stamps
+    monitor.update_trajectory(stamps, solution.poses)
+    snapshot = monitor.snapshot()
+    scans = snapshot.scans()
+    _, explanation = check.verdict_settings(args)
+    assessment = explain(scans, snapshot.result, explanation)
+    print(f'\nThe same bag with one wrong loop closure (keyframe {end} seen from keyframe '
+          f'{start} {error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
+    print(report.format_summary(assessment, 'wrong loop closure'))
+    target = out / 'wrong_loop_closure'
+    outputs = argparse.Namespace(report=target / 'report.json', plot=target / 'map.png',
+                                 pairs_csv=None, explain=None)
+    check.write_outputs(outputs, scans, assessment, {'source': 'demo bag + one wrong loop '
+                                                     f'closure {start}-{end}'})
+    print(f'  report                {outputs.report}\n  figure                {outputs.plot}')
+    return replay.EXIT_CONSISTENT if assessment.consistent else replay.EXIT_INCONSISTENT
+
+
 def run(args: argparse.Namespace) -> int:
+    """Both sides; exits 0 when the corrected map passes and the broken one fails."""
     out = args.output
-    replay = ['replay', str(demo_bag_path()), '--report', str(out / 'report.json'),
-              '--plot', str(out / 'map.png'), '--stats-plot', str(out / 'psi.png'),
-              '--pairs-csv', str(out / 'pairs.csv')]
-    replay_args = cli_main.build_parser('replay').parse_args(replay + (['--quiet'] if args.quiet else []))
-    return replay_args.run(replay_args)
+    arguments = ['replay', str(demo_bag_path()), '--report', str(out / 'report.json'),
+                 '--plot', str(out / 'map.png'), '--stats-plot', str(out / 'psi.png'),
+                 '--pairs-csv', str(out / 'pairs.csv')]
+    replay_args = cli_main.build_parser('replay').parse_args(arguments + (['--quiet'] if args.quiet
+                                                                  else []))
+    corrected, monitor = replay.replay_and_report(replay_args)
+    broken = break_map(monitor, out, replay_args)
+    as_expected = (corrected, broken) == (replay.EXIT_CONSISTENT, replay.EXIT_INCONSISTENT)
+    print('\ndemo: ' + ('the corrected map passes and the wrong loop closure is caught'
+                        if as_expected else 'UNEXPECTED verdicts (see above)'))
+    return 0 if as_expected else 1

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
 from map_consistency_ros.io.errors import InputError
 
@@ -24,6 +25,13 @@ SUBCOMMANDS = [
 ]
 
 
+def _version() -> str:
+    try:
+        return version('map_consistency_ros')
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return 'unknown (not installed)'
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser of every subcommand, or only `command`'s options with the others listed: their
     modules (numpy, numba, scipy, matplotlib, rosbags behind them) are then not imported."""
@@ -35,6 +43,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                '--params-file config/map_consistency.yaml (topics, services, parameters: '
                'docs/node.md). Every subcommand takes --help.',
     )
+    parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
         if command is not None and name != command:

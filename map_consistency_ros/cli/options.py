@@ -1,41 +1,68 @@
-"""Command-line options shared by the subcommands that run the consistency test."""
+"""Command-line options built from the parameters of the settings dataclasses.
+
+`add_parameter_arguments` turns each parameter (core/parameters.py) into `--name-with-dashes`
+with its description, unit, range and default in the help; only options given on the command
+line land in the namespace, so they can override a parameter file (`parameter_values`).
+"""
 from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
+from typing import Any
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.explanation import ExplanationSettings
+from map_consistency_ros.core.parameters import ParameterSpec, settings_from_values, specs
 
-_DEFAULTS = ConsistencyParameters()
+
+def option_name(name: str) -> str:
+    return '--' + name.replace('_', '-')
+
+
+def _add(group, spec: ParameterSpec) -> None:
+    default = spec.default if spec.kind is not tuple else ' '.join(f'{v:g}' for v in spec.default)
+    help_text = f'{spec.help}; default {default!s}'.replace('%', '%%')
+    common = dict(dest=spec.name, default=argparse.SUPPRESS, help=help_text)
+    if spec.kind is bool:
+        group.add_argument(option_name(spec.name), action=argparse.BooleanOptionalAction,
+                           **common)
+    elif spec.kind is tuple:
+        group.add_argument(option_name(spec.name), type=float, nargs=len(spec.default),
+                           metavar='V', **common)
+    else:
+        metavar = None if spec.choices else (spec.unit.upper() or
+                                              ('N' if spec.kind is int else 'VALUE'))
+        group.add_argument(option_name(spec.name), type=spec.kind,
+                           choices=spec.choices or None, metavar=metavar, **common)
+
+
+def add_parameter_arguments(parser, settings_class: type, title: str,
+                            only: Sequence[str] | None = None,
+                            skip: Sequence[str] = ()) -> None:
+    """One option per parameter of `settings_class` (all, or those in `only`) in a group."""
+    group = parser.add_argument_group(title)
+    for spec in specs(settings_class):
+        if (only is None or spec.name in only) and spec.name not in skip:
+            _add(group, spec)
+
+
+def parameter_values(args: argparse.Namespace, base: dict[str, Any] | None = None
+                     ) -> dict[str, Any]:
+    """`base` (e.g. a parameter file's values) overridden by the options given."""
+    values = dict(base or {})
+    values.update(vars(args))
+    return values
 
 
 def add_test_arguments(parser: argparse.ArgumentParser) -> None:
     """Confidence levels and robustifications of the statistical test."""
-    group = parser.add_argument_group('statistical test')
-    group.add_argument('--alpha', type=float, default=_DEFAULTS.alpha,
-                       help='level of the pairwise test (default %(default)s)')
-    group.add_argument('--binomial-alpha', type=float, default=_DEFAULTS.binomial_alpha,
-                       help="level of the cascaded per-scan test, the paper's alpha' "
-                            '(default %(default)s)')
-    group.add_argument('--failure-probability', type=float,
-                       default=_DEFAULTS.failure_probability,
-                       help='probability that one pairwise test fails by chance '
-                            '(default %(default)s)')
-    group.add_argument('--local-alpha', type=float, default=_DEFAULTS.local_alpha,
-                       help='level used to fit each scan\'s noise scale on its temporal '
-                            'neighbours (default %(default)s)')
-    group.add_argument('--local-window', type=int, default=_DEFAULTS.local_window,
-                       help='temporal neighbours that fit a scan\'s noise scale '
-                            '(default %(default)s)')
-    group.add_argument('--min-points', type=int, default=_DEFAULTS.min_points,
-                       help='pairs with fewer inconsistent end points are not tested '
-                            '(default %(default)s)')
-    group.add_argument('--trim', type=int, default=_DEFAULTS.trim_largest,
-                       help='largest distances of a pair dropped before its test '
-                            '(default %(default)s)')
-    group.add_argument('--flag-window', type=int, default=_DEFAULTS.flag_window,
-                       help='keep a flagged scan only if another flagged scan is within this '
-                            'many indices; 0 keeps all (default %(default)s)')
+    add_parameter_arguments(parser, ConsistencyParameters, 'statistical test')
+
+
+def add_verdict_arguments(parser: argparse.ArgumentParser) -> None:
+    """The second stage of the verdict: misalignment or change."""
+    add_parameter_arguments(parser, ExplanationSettings, 'verdict: misalignment or change')
 
 
 def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,10 +87,13 @@ def fov_radians(args: argparse.Namespace) -> float | None:
     return None if args.fov is None else math.radians(args.fov)
 
 
-def parameters_from_args(args: argparse.Namespace) -> ConsistencyParameters:
-    """ConsistencyParameters from the parsed options (ValueError names a bad one)."""
-    return ConsistencyParameters(
-        alpha=args.alpha, local_alpha=args.local_alpha,
-        failure_probability=args.failure_probability, binomial_alpha=args.binomial_alpha,
-        local_window=args.local_window, min_points=args.min_points,
-        trim_largest=args.trim, flag_window=args.flag_window)
+def parameters_from_args(args: argparse.Namespace,
+                         base: dict[str, Any] | None = None) -> ConsistencyParameters:
+    """ConsistencyParameters from the parsed options over `base` (ValueError names a bad one)."""
+    return settings_from_values(ConsistencyParameters, parameter_values(args, base))
+
+
+def explanation_from_args(args: argparse.Namespace,
+                          base: dict[str, Any] | None = None) -> ExplanationSettings:
+    """ExplanationSettings from the parsed options over `base` (ValueError names a bad one)."""
+    return settings_from_values(ExplanationSettings, parameter_values(args, base))

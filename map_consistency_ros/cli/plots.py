@@ -10,8 +10,9 @@ import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first
 import numpy as np  # noqa: E402
 
 from map_consistency_ros.core import statistics  # noqa: E402
-from map_consistency_ros.core.consistency import (  # noqa: E402
-    ConsistencyResult, inconsistent_endpoints)
+from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
+from map_consistency_ros.core.explanation import (  # noqa: E402
+    Assessment, misaligned_endpoints)
 from map_consistency_ros.core.measure import point_distances  # noqa: E402
 from map_consistency_ros.core.scan_geometry import ScanSet  # noqa: E402
 
@@ -19,32 +20,51 @@ from map_consistency_ros.core.scan_geometry import ScanSet  # noqa: E402
 _HIGHLIGHT_SCALES = 3.0
 
 
-def plot_map(ax, scans: ScanSet, result: ConsistencyResult | None = None, title: str = '') -> None:
-    """Draw all end points, the trajectory, flagged scans and their inconsistent end points."""
+def plot_map(ax, scans: ScanSet, assessment: Assessment | None = None, title: str = '') -> None:
+    """Draw all end points and the trajectory; then the misaligned regions (orange: the moved
+    scans, purple: their reference scans, red: their inconsistent end points) and the changed
+    places (blue circles, area by point count), as in the paper's Fig. 1."""
     valid_points = scans.endpoints[scans.valid]
     ax.scatter(valid_points[:, 0], valid_points[:, 1], s=0.05, c='0.35', linewidths=0,
                rasterized=True)
     ax.plot(scans.sensor_poses[:, 0], scans.sensor_poses[:, 1], lw=0.5, c='tab:blue', alpha=0.6,
             label='trajectory')
-    if result is not None and result.inconsistent.any():
-        flagged = result.inconsistent
-        flagged_points = scans.endpoints[flagged][scans.valid[flagged]]
-        ax.scatter(flagged_points[:, 0], flagged_points[:, 1], s=0.3, c='tab:orange',
-                   linewidths=0, rasterized=True, label='inconsistent scans')
-        deep = inconsistent_endpoints(scans, result, min_depth=_HIGHLIGHT_SCALES)
-        ax.scatter(deep[:, 0], deep[:, 1], s=2.0, c='red', linewidths=0,
-                   label='inconsistent end points')
-        ax.scatter(scans.sensor_poses[flagged, 0], scans.sensor_poses[flagged, 1], s=6,
-                   c='red', marker='x', linewidths=0.6)
-    if result is not None:
-        verdict = 'consistent' if result.consistent else (
-            f'inconsistent: {int(result.inconsistent.sum())} scans flagged')
-        title = f'{title}\n{verdict}' if title else verdict
-    ax.set_title(title, fontsize=9)
+    if assessment is not None:
+        _plot_explanation(ax, scans, assessment)
+        title = f'{title}\n{assessment.summary_line()}' if title else assessment.summary_line()
+    ax.set_title(title, fontsize=8)
     ax.set_aspect('equal')
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
     ax.legend(loc='upper right', fontsize=6, markerscale=4)
+
+
+def _scan_points(scans: ScanSet, selected: np.ndarray) -> np.ndarray:
+    return scans.endpoints[selected][scans.valid[selected]]
+
+
+def _plot_explanation(ax, scans: ScanSet, assessment: Assessment) -> None:
+    moved = np.zeros(scans.scan_count, dtype=bool)
+    reference = np.zeros(scans.scan_count, dtype=bool)
+    for region in assessment.misalignments:
+        moved[region.scans] = True
+        reference[region.reference_scans] = True
+    if assessment.settings.strict:
+        moved = assessment.result.inconsistent
+    for selected, colour, label in ((reference & ~moved, 'tab:purple', 'reference scans'),
+                                    (moved, 'tab:orange', 'misaligned scans')):
+        if selected.any():
+            points = _scan_points(scans, selected)
+            ax.scatter(points[:, 0], points[:, 1], s=0.3, c=colour, linewidths=0,
+                       rasterized=True, label=label)
+    deep = misaligned_endpoints(scans, assessment, min_depth=_HIGHLIGHT_SCALES)
+    if len(deep):
+        ax.scatter(deep[:, 0], deep[:, 1], s=2.0, c='red', linewidths=0,
+                   label='misaligned end points')
+    if assessment.changes:
+        places = np.array([(place.x, place.y, place.points) for place in assessment.changes])
+        ax.scatter(places[:, 0], places[:, 1], s=8.0 + 4.0 * np.sqrt(places[:, 2]), facecolors='none',
+                   edgecolors='tab:cyan', linewidths=0.8, label='changed places')
 
 
 def plot_statistics(ax, result: ConsistencyResult) -> None:
@@ -106,11 +126,11 @@ def save_pairs_figure(path: str | Path, scans: ScanSet, result: ConsistencyResul
     save_figure(figure, path)
 
 
-def save_map_figure(path: str | Path, scans: ScanSet, result: ConsistencyResult | None,
+def save_map_figure(path: str | Path, scans: ScanSet, assessment: Assessment | None,
                     title: str = '') -> None:
     """Write the map figure as a PNG."""
     figure, ax = plt.subplots(figsize=(9, 9))
-    plot_map(ax, scans, result, title)
+    plot_map(ax, scans, assessment, title)
     save_figure(figure, path)
 
 

@@ -27,7 +27,6 @@ examples:
 from __future__ import annotations
 
 import argparse
-import importlib
 import math
 import sys
 import time
@@ -38,12 +37,16 @@ import numpy as np
 
 from map_consistency_ros.cli import check, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
+from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
-from map_consistency_ros.io import carmen
-from map_consistency_ros.io.bags import (PATH_TYPE, BadMessage, BagReader, BagTopics,
-                                         Constraints, OdometryKeyframes, PoseSample, Scan,
-                                         Trajectory)
+from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
+from map_consistency_ros.core.records import KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.messages import PATH_TYPE, POSE_SOURCE_TYPES, time_message
+from map_consistency_ros.io.parameter_file import read_parameter_file
 
 EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 _SHOWN_WARNINGS = 5
@@ -63,25 +66,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(default /trajectory, else the only pose topic of the bag)')
     topics.add_argument('--constraints-topic', default='/constraints',
                         help='Float64MultiArray edge rows, optional (%(default)s)')
-    poses = parser.add_argument_group('poses')
-    poses.add_argument('--laser-offset', type=float, nargs=3, default=None,
-                       metavar=('X', 'Y', 'THETA'),
-                       help='laser pose in the pose frame (default: /tf_static for single-pose '
-                            'topics, else 0 0 0)')
-    poses.add_argument('--stamp-tolerance', type=float, default=MonitorSettings.stamp_tolerance,
-                       metavar='SECONDS',
-                       help='pose and scan stamps this close match (default %(default)s)')
-    poses.add_argument('--keyframe-distance', type=float, default=0.5, metavar='METRES',
-                       help='single-pose topics: new keyframe after this much travel '
-                            '(default %(default)s)')
-    poses.add_argument('--keyframe-angle', type=float, default=0.25, metavar='RADIANS',
-                       help='single-pose topics: new keyframe after this much turning '
-                            '(default %(default)s)')
-    sensor = parser.add_argument_group('sensor')
-    sensor.add_argument('--max-range', type=float, default=carmen.DEFAULT_MAX_RANGE,
-                        metavar='METRES',
-                        help='usable range, capped by each scan\'s range_max (default %(default)s)')
+    parser.add_argument('--params-file', type=Path, metavar='YAML',
+                        help="the node's ROS 2 parameter file (config/map_consistency.yaml); "
+                             'options given here override its values')
+    options.add_parameter_arguments(parser, FeedSettings, 'poses and sensor',
+                                    skip=('pose_source',))
+    options.add_parameter_arguments(parser, MonitorSettings, 'monitor')
     options.add_test_arguments(parser)
+    options.add_verdict_arguments(parser)
     check.add_output_arguments(parser)
     parser.add_argument('--stats-plot', type=Path, metavar='PNG',
                         help='write the histogram of Psi over the tested pairs')
@@ -124,13 +116,11 @@ class ReplayStats:
 
 
 class Replay:
-    """Feeds one bag's records to a ConsistencyMonitor as the node would."""
+    """Feeds one bag's records through the node's feed (core/feed.py), in log order."""
 
-    def __init__(self, bag: BagReader, monitor: ConsistencyMonitor,
-                 keyframes: OdometryKeyframes | None) -> None:
+    def __init__(self, bag: BagReader, feed: MonitorFeed) -> None:
         self.bag = bag
-        self.monitor = monitor
-        self.keyframes = keyframes
+        self.feed = feed
         self.stats = ReplayStats()
 
     def run(self, progress=None, duration: float | None = None) -> MonitorSnapshot:
@@ -142,63 +132,36 @@ class Replay:
             if log_time > stop:
                 break
             self.stats.log_seconds = log_time - self.bag.start_time
-            if isinstance(record, Scan):
-                self._scan(record)
-                if progress is not None:
-                    progress(self.stats.scans, total)
-            elif isinstance(record, Trajectory):
-                self.stats.trajectories += 1
-                self._trajectory(record.stamps, record.poses)
-            elif isinstance(record, PoseSample):
-                self._pose(record)
-            elif isinstance(record, Constraints):
-                self._constraints(record.rows)
-            elif isinstance(record, BadMessage):
+            if isinstance(record, BadMessage):
                 self.stats.warn(f'message {record.index} on {record.topic} ignored: '
                                 f'{record.reason}')
-        if self.monitor.pending:
-            self.monitor.refresh()
+                continue
+            self._count(record)
+            applied = self.feed.apply(record)
+            self.stats.warnings.extend(applied.warnings)
+            if applied.reset:
+                self.stats.warn(f'monitor reset: {applied.reset}')
+            if isinstance(record, Scan) and progress is not None:
+                progress(self.stats.scans, total)
         self.stats.seconds = time.perf_counter() - started
-        return self.monitor.snapshot()
+        return self.feed.monitor.snapshot()
 
-    def _scan(self, scan: Scan) -> None:
-        self.stats.scans += 1
-        if self.keyframes is not None:
-            self.keyframes.add_scan(scan)
-            return
-        self._add_scan(scan)
-
-    def _add_scan(self, scan: Scan) -> None:
-        try:
-            self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
-        except ValueError as error:
-            self.stats.warn(f'scan at {scan.stamp:.6f} skipped: {error}')
-
-    def _trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> None:
-        summary = self.monitor.update_trajectory(stamps, poses)
-        self.stats.warnings.extend(summary.warnings)
-
-    def _pose(self, sample: PoseSample) -> None:
-        self.stats.pose_messages += 1
-        placed = self.keyframes.add_pose(sample)
-        for scan in placed:
-            self._add_scan(scan)
-        if placed:
-            self.stats.trajectories += 1
-            self._trajectory(np.array(self.keyframes.stamps), np.array(self.keyframes.poses))
-
-    def _constraints(self, rows: np.ndarray) -> None:
-        self.stats.constraint_sets += 1
-        try:
-            self.monitor.set_constraints(rows)
-        except ValueError as error:
-            self.stats.warn(f'constraints set {self.stats.constraint_sets} ignored: {error}')
+    def _count(self, record) -> None:
+        stats = self.stats
+        if isinstance(record, Scan):
+            stats.scans += 1
+        elif isinstance(record, KeyframeEstimate):
+            stats.trajectories += 1
+        elif isinstance(record, PoseSample):
+            stats.pose_messages += 1
+        else:
+            stats.constraint_sets += 1
 
 
-def _laser_offset(bag: BagReader, args: argparse.Namespace) -> tuple[np.ndarray, str]:
+def _laser_offset(bag: BagReader, values: dict) -> tuple[np.ndarray, str]:
     """The laser pose in the pose frame and where it came from."""
-    if args.laser_offset is not None:
-        return np.asarray(args.laser_offset, dtype=np.float64), 'option'
+    if 'laser_offset' in values:
+        return np.asarray(values['laser_offset'], dtype=np.float64), 'parameter'
     if bag.pose_type == PATH_TYPE:
         return np.zeros(3), 'none (Path poses are laser poses)'
     frames = _first_frames(bag)
@@ -222,36 +185,67 @@ def _first_frames(bag: BagReader) -> tuple[str, str] | None:
     return None
 
 
-def open_bag(args: argparse.Namespace) -> BagReader:
-    """The reader of the bags named by parsed replay options (enter it to open)."""
-    if not args.max_range > 0:
-        raise InputError('options', f'--max-range must be positive, got {args.max_range}')
+def parameter_values(args: argparse.Namespace) -> dict:
+    """The parameter file's values overridden by the options given; unknown names in the
+    file are warned about on stderr with the closest valid name."""
+    from map_consistency_ros.ros.settings import PARAMETER_NAMES
+    base = {} if args.params_file is None else read_parameter_file(args.params_file)
+    for warning in unknown_names(base, PARAMETER_NAMES + ('use_sim_time',)):
+        print(f'map-consistency replay: {args.params_file}: {warning}', file=sys.stderr)
+    values = options.parameter_values(args, base)
+    for name in ('bags', 'scan_topic', 'pose_topic', 'constraints_topic', 'params_file'):
+        values.pop(name, None)  # options, not parameters
+    return values
+
+
+def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
+    """The reader of the bags named by parsed replay options (enter it to open); `values`
+    are the parameters (default: from the options)."""
+    values = parameter_values(args) if values is None else values
+    try:
+        max_range = settings_from_values(FeedSettings, values).max_range
+    except ValueError as error:
+        raise InputError('parameters', str(error)) from None
     topics = BagTopics(scan=args.scan_topic, poses=args.pose_topic,
                        constraints=args.constraints_topic)
-    return BagReader(args.bags, topics, max_range=args.max_range)
+    return BagReader(args.bags, topics, max_range=max_range)
 
 
-def _settings(args: argparse.Namespace, offset: np.ndarray) -> MonitorSettings:
+def node_parameters(values: dict) -> dict:
+    """Every node parameter as the node would take it (all checked, so a parameter file that
+    would stop the node stops replay too); replay applies those of the feed, the monitor and
+    the test."""
+    from map_consistency_ros.ros.settings import NODE_GROUPS
+    checked = {}
     try:
-        return MonitorSettings(laser_offset=tuple(float(v) for v in offset),
-                               stamp_tolerance=args.stamp_tolerance)
+        for _, group in NODE_GROUPS:
+            settings = settings_from_values(group, values)
+            checked.update({spec.name: getattr(settings, spec.name) for spec in specs(group)})
     except ValueError as error:
-        raise InputError('options', str(error)) from None
+        raise InputError('parameters', str(error)) from None
+    return checked
 
 
-def replay_bag(args: argparse.Namespace, bag: BagReader) -> tuple[MonitorSnapshot, Replay, dict]:
+def make_feed(values: dict, pose_type: str) -> MonitorFeed:
+    """The node's feed with the node's parameters; the pose source is the bag topic's type."""
+    source = next(name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
+    values = dict(values, pose_source=source)
+    return MonitorFeed(settings_from_values(ConsistencyParameters, values),
+                       settings_from_values(MonitorSettings, values),
+                       settings_from_values(FeedSettings, values))
+
+
+def replay_bag(args: argparse.Namespace, bag: BagReader,
+               values: dict | None = None) -> tuple[MonitorSnapshot, Replay, dict]:
     """Run the monitor over an open bag; the snapshot, the replay and the report details."""
-    try:
-        parameters = options.parameters_from_args(args)
-        keyframes = None if bag.pose_type == PATH_TYPE else OdometryKeyframes(
-            args.keyframe_distance, args.keyframe_angle)
-    except ValueError as error:
-        raise InputError('options', str(error)) from None
-    offset, offset_source = _laser_offset(bag, args)
-    monitor = ConsistencyMonitor(parameters, _settings(args, offset))
-    replay = Replay(bag, monitor, keyframes)
+    values = parameter_values(args) if values is None else values
+    offset, offset_source = _laser_offset(bag, values)
+    parameters = node_parameters(dict(values, laser_offset=tuple(offset)))
+    feed = make_feed(parameters, bag.pose_type)
+    replay = Replay(bag, feed)
     with ProgressBar('replaying', enabled=not args.quiet) as progress:
         snapshot = replay.run(progress, args.duration)
+    monitor = feed.monitor
     details = {
         'source': bag.source,
         'topics': {'scan': bag.topics.scan, 'poses': bag.pose_topic, 'pose_type': bag.pose_type,
@@ -266,12 +260,16 @@ def replay_bag(args: argparse.Namespace, bag: BagReader) -> tuple[MonitorSnapsho
                    'keyframes': snapshot.keyframe_count,
                    'unmatched_poses': snapshot.unmatched_poses,
                    'buffered_scans': snapshot.buffered_scans,
+                   'scans_missing_from_stamps': feed.gap_scans,
+                   'dropped_scans': monitor.dropped_scans,
+                   'resets': feed.resets,
                    'seconds': replay.stats.seconds,
                    'bag_seconds_replayed': replay.stats.log_seconds,
                    'scans_per_second': replay.stats.scan_rate,
                    'realtime_scans_per_second': replay.stats.realtime_rate,
                    'warnings': replay.stats.warnings},
         'keyframe_stamps': snapshot.stamps,
+        'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),
     }
     if snapshot.model is not None:
         model = snapshot.model
@@ -284,24 +282,22 @@ def replay_bag(args: argparse.Namespace, bag: BagReader) -> tuple[MonitorSnapsho
     return snapshot, replay, details
 
 
-def _print_summary(snapshot: MonitorSnapshot, replay: Replay, bag: BagReader) -> None:
+def _print_summary(assessment: Assessment, replay: Replay, bag: BagReader) -> None:
     stats = replay.stats
-    print(report.format_summary(snapshot.result, bag.source))
+    print(report.format_summary(assessment, bag.source))
     print(f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
           f'{stats.trajectories} trajectory updates')
     print(f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
           f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
           f'{stats.realtime_rate:.1f} scans/s')
+    if stats.trajectories == 0 and stats.pose_messages:
+        print(f'  keyframes             {stats.pose_messages} poses, keyframes every '
+              f'{replay.feed.settings.keyframe_distance:g} m / '
+              f'{replay.feed.settings.keyframe_angle:g} rad')
     if stats.warnings:
         print(f'  warnings              {len(stats.warnings)}')
         for text in stats.warnings[:_SHOWN_WARNINGS]:
             print(f'    {text}')
-
-
-def _message_class(msgtype: str):
-    """The rclpy message class of 'pkg/msg/Name'."""
-    package, _, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{package}.msg'), name)
 
 
 def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: int = 1,
@@ -312,6 +308,8 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
     then a moment more for others found in the same discovery round, so that nodes started
     just before (a node under test, a recorder) get the first messages. Publishers are reliable with
     deep queues, compatible with both reliable and sensor-data (best effort) subscribers.
+    `/clock` carries the bag's log time before each message, so nodes with use_sim_time
+    follow the bag (and see it pause when it ends).
     """
     if not rate > 0:
         raise InputError('options', f'--rate must be positive, got {rate}')
@@ -320,6 +318,9 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
     try:
         import rclpy
         from rclpy.context import Context
+        from rosgraph_msgs.msg import Clock
+
+        from map_consistency_ros.ros.conversions import message_class
     except ImportError as error:
         raise InputError('--publish', f'needs rclpy from ROS 2 Jazzy ({error})') from None
     topics = [bag.topics.scan, bag.pose_topic]
@@ -333,8 +334,9 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
         publishers = {}
         for topic in topics:
             msgtype = bag.topic_type(topic)
-            publishers[topic] = node.create_publisher(_message_class(msgtype), topic,
+            publishers[topic] = node.create_publisher(message_class(msgtype), topic,
                                                       _PUBLISH_DEPTH)
+        clock = node.create_publisher(Clock, '/clock', 10)
         deadline = time.monotonic() + discovery_timeout
         while (not all(publisher.get_subscription_count() >= subscribers
                        for publisher in publishers.values())
@@ -349,6 +351,7 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
                 delay = start_wall + (log_time - start_log) / rate - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
+                clock.publish(Clock(clock=time_message(message_class, log_time)))
                 publishers[topic].publish(data)
                 sent += 1
                 progress(sent, total)
@@ -362,17 +365,29 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
 
 
 def run(args: argparse.Namespace) -> int:
-    with open_bag(args) as bag:
-        if args.publish:
+    values = parameter_values(args)
+    if args.publish:
+        with open_bag(args, values) as bag:
             return publish_bag(bag, args.rate, quiet=args.quiet, subscribers=args.subscribers)
-        snapshot, replay, details = replay_bag(args, bag)
+    return replay_and_report(args, values)[0]
+
+
+def replay_and_report(args: argparse.Namespace,
+                      values: dict | None = None) -> tuple[int, ConsistencyMonitor]:
+    """Replay the bag, print the verdict, write the outputs asked for; the exit code and the
+    monitor in its final state."""
+    values = parameter_values(args) if values is None else values
+    with open_bag(args, values) as bag:
+        snapshot, replay, details = replay_bag(args, bag, values)
         if snapshot.result is None:
             raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
                                          f'{bag.topics.scan} and no pose of {bag.pose_topic} '
                                          'matched one (check --stamp-tolerance)')
-        _print_summary(snapshot, replay, bag)
-    scans = snapshot.scans()
-    check.write_outputs(args, scans, snapshot.result, details)
+        scans = snapshot.scans()
+        assessment = explain(scans, snapshot.result,
+                             settings_from_values(ExplanationSettings, values))
+        _print_summary(assessment, replay, bag)
+    check.write_outputs(args, scans, assessment, details)
     if args.stats_plot:
         plots.save_statistics_figure(args.stats_plot, snapshot.result)
     for label, path in (('report', args.report), ('figure', args.plot),
@@ -380,4 +395,5 @@ def run(args: argparse.Namespace) -> int:
                         ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if snapshot.result.consistent else EXIT_INCONSISTENT
+    code = EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT
+    return code, replay.feed.monitor

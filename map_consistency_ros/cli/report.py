@@ -8,60 +8,25 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
+from map_consistency_ros.core.explanation import Assessment
+from map_consistency_ros.core.reporting import (assessment_report, plain, result_report,
+                                                scan_names)
 
-
-def _plain(value):
-    if isinstance(value, dict):
-        return {str(key): _plain(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    if isinstance(value, Path):
-        return str(value)
-    return value
+__all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
+           'format_summary']
 
 
 def write_json(path: str | Path, report: dict) -> None:
     """Write `report` as indented JSON (numpy arrays and scalars become lists and numbers)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(_plain(report), indent=2) + '\n')
-
-
-def _ids(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:
-    return np.arange(result.scan_count) if scan_ids is None else np.asarray(scan_ids)
-
-
-def result_report(result: ConsistencyResult, scan_ids: np.ndarray | None = None) -> dict:
-    """The verdict, the figures and the per-scan decisions of a consistency result.
-
-    `scan_ids` name the scans in the input (record positions) where the test ran on a subset.
-    """
-    ids = _ids(result, scan_ids)
-    return {
-        'verdict': 'consistent' if result.consistent else 'inconsistent',
-        'summary': result.summary(),
-        'parameters': result.parameters.as_dict(),
-        'inconsistent_scans': ids[result.inconsistent_scans],
-        'scans': {
-            'id': ids,
-            'scale': result.scales,
-            'tested_pairs': result.overlap_counts,
-            'failed_pairs': result.failed_counts,
-            'critical_count': result.critical_counts,
-        },
-    }
+    path.write_text(json.dumps(plain(report), indent=2) + '\n')
 
 
 def write_pairs_csv(path: str | Path, result: ConsistencyResult,
                     scan_ids: np.ndarray | None = None) -> None:
     """Every overlapping pair (n_ij > 0): i, j, M_ij, n_ij, psi_ij (empty if untested), failed."""
-    ids = _ids(result, scan_ids)
+    ids = scan_names(result, scan_ids)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     overlapping = np.flatnonzero(result.point_count > 0)
@@ -77,22 +42,44 @@ def write_pairs_csv(path: str | Path, result: ConsistencyResult,
                              int(result.failed[index])])
 
 
-def format_summary(result: ConsistencyResult, source: str,
+def format_summary(assessment: Assessment, source: str,
                    scan_ids: np.ndarray | None = None) -> str:
-    """A few human lines: what was tested and the verdict."""
+    """A few human lines: the verdict, what was tested, the misaligned regions."""
+    result = assessment.result
     figures = result.summary()
-    ids = _ids(result, scan_ids)
-    verdict = 'CONSISTENT' if result.consistent else 'INCONSISTENT'
+    ids = scan_names(result, scan_ids)
     lines = [
-        f'{source}: {verdict}',
+        f'{source}: {assessment.summary_line()}',
         f'  scans                 {figures["scans"]}',
         f'  overlapping pairs     {figures["overlapping_pairs"]} '
         f'({figures["tested_pairs"]} with enough points to test)',
         f'  failed pairs          {figures["failed_pairs"]}',
-        f'  inconsistent scans    {figures["inconsistent_scans"]}',
+        f'  paper\'s test flags    {figures["inconsistent_scans"]} scans',
     ]
-    if not result.consistent:
-        shown = ', '.join(str(ids[index]) for index in result.inconsistent_scans[:20])
-        more = ' ...' if figures['inconsistent_scans'] > 20 else ''
-        lines.append(f'  flagged scan indices  {shown}{more}')
+    counts = assessment.class_counts()
+    if sum(counts.values()):
+        lines.append('  failed pairs explained ' + ', '.join(
+            f'{count} {name}' for name, count in counts.items()))
+    for region in assessment.misalignments[:_SHOWN_REGIONS]:
+        lines.append(f'  misaligned region     {_span(ids[region.scans])} against '
+                     f'{_span(ids[region.reference_scans])}: {_size(region)}')
+    if len(assessment.misalignments) > _SHOWN_REGIONS:
+        lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions')
     return '\n'.join(lines)
+
+
+_SHOWN_REGIONS = 5
+
+
+def _span(ids: np.ndarray) -> str:
+    if ids.size == 0:
+        return 'no scan'
+    return f'scans {ids.min()}-{ids.max()} ({ids.size})' if ids.size > 1 else f'scan {ids[0]}'
+
+
+def _size(region) -> str:
+    if not region.registered:
+        return f'beyond local registration (a gross error), {region.pairs} pairs'
+    dx, dy, dtheta = region.correction
+    return (f'{region.displacement:.2f} m RMS (dx {dx:+.2f} m, dy {dy:+.2f} m, '
+            f'dtheta {np.degrees(dtheta):+.2f} deg), {region.pairs} pairs')

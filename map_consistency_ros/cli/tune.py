@@ -26,6 +26,8 @@ from pathlib import Path
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.explanation import Assessment, explain
+from map_consistency_ros.core.parameters import settings_from_values
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningResult, TuningSettings,
                                              tune_dcs)
@@ -34,7 +36,6 @@ from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
 
 EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
-_DEFAULTS = TuningSettings()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,27 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--stride', type=int, default=1, help='keep every STRIDE-th scan')
     build.add_argument('--seed', type=int, default=0, help='random seed (default %(default)s)')
     build.add_argument('--save-graph', type=Path, metavar='G2O', help='write the built graph')
-    search = parser.add_argument_group('search')
-    search.add_argument('--phi-min', type=float, default=_DEFAULTS.phi_min)
-    search.add_argument('--phi-max', type=float, default=_DEFAULTS.phi_max)
-    search.add_argument('--grid-steps', type=int, default=_DEFAULTS.grid_steps,
-                        help='grid points over sqrt(Phi) (default %(default)s)')
-    search.add_argument('--tolerance', type=float, default=_DEFAULTS.tolerance,
-                        help='width of the final Phi bracket (default %(default)s)')
-    search.add_argument('--flat-tolerance', type=float, default=_DEFAULTS.flat_tolerance,
-                        help='stop refining once two M values agree within this fraction '
-                             '(default %(default)s; 0 refines to --tolerance)')
-    search.add_argument('--move-tolerance', type=float, default=_DEFAULTS.move_tolerance,
-                        metavar='METRES',
-                        help='re-measure a pair only when its end points moved more than this '
-                             'relative to each other (default %(default)s)')
-    search.add_argument('--linear-grid', action='store_true', help='grid evenly in Phi')
-    search.add_argument('--iterations', type=int, default=_DEFAULTS.iterations,
-                        help='DCS solver iterations per Phi (default %(default)s)')
-    search.add_argument('--workers', type=int, default=_DEFAULTS.workers,
-                        help='DCS solves run at once (0: one per CPU, at most 4)')
+    options.add_parameter_arguments(parser, TuningSettings, 'search')
     options.add_sensor_arguments(parser)
     options.add_test_arguments(parser)
+    options.add_verdict_arguments(parser)
     output = parser.add_argument_group('output')
     output.add_argument('--report', type=Path, metavar='JSON', help='write the result as JSON')
     output.add_argument('--profile-plot', type=Path, metavar='PNG',
@@ -110,12 +94,9 @@ def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        settings = TuningSettings(
-            phi_min=args.phi_min, phi_max=args.phi_max, grid_steps=args.grid_steps,
-            tolerance=args.tolerance, sqrt_grid=not args.linear_grid,
-            iterations=args.iterations, workers=args.workers,
-            flat_tolerance=args.flat_tolerance, move_tolerance=args.move_tolerance,
-            parameters=options.parameters_from_args(args))
+        settings = settings_from_values(TuningSettings, options.parameter_values(args),
+                                        parameters=options.parameters_from_args(args))
+        explanation = options.explanation_from_args(args)
     except ValueError as error:
         raise InputError('options', str(error)) from None
     content, log = load_graph(args)
@@ -138,44 +119,46 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(source, str(error)) from None
     elapsed = time.perf_counter() - started
     baseline = profile.evaluate(1.0)
-    baseline_test = check_consistency(profile.scans_at(baseline.optimization.poses),
-                                      settings.parameters,
-                                      reference_scans=profile.scans_at(
-                                          content.graph.odometry_chain()))
-    _print_summary(source, result, baseline.value, baseline_test.consistent, elapsed)
+    baseline_scans = profile.scans_at(baseline.optimization.poses)
+    baseline_test = explain(baseline_scans, check_consistency(
+        baseline_scans, settings.parameters,
+        reference_scans=profile.scans_at(content.graph.odometry_chain())), explanation)
+    tuned = explain(profile.scans_at(result.poses), result.consistency, explanation)
+    _print_summary(source, result, tuned, baseline.value, baseline_test, elapsed)
     if args.report:
-        report.write_json(args.report, _report(source, result, model, baseline, baseline_test,
-                                               settings, elapsed))
+        report.write_json(args.report, _report(source, result, tuned, model, baseline,
+                                               baseline_test, settings, elapsed))
     if args.profile_plot:
         _save_profile(args.profile_plot, result, settings, source)
     if args.maps_plot:
-        _save_maps(args.maps_plot, profile, baseline.optimization.poses, baseline_test, result)
-    return EXIT_CONSISTENT if result.consistent else EXIT_INCONSISTENT
+        _save_maps(args.maps_plot, profile, baseline.optimization.poses, baseline_test, result,
+                   tuned)
+    return EXIT_CONSISTENT if tuned.consistent else EXIT_INCONSISTENT
 
 
-def _print_summary(source: str, result: TuningResult, baseline_value: float,
-                   baseline_consistent: bool, elapsed: float) -> None:
-    verdict = 'CONSISTENT' if result.consistent else 'INCONSISTENT'
-    print(f'{source}: Phi* = {result.phi:.6g}, map at Phi* {verdict}')
+def _print_summary(source: str, result: TuningResult, tuned: Assessment, baseline_value: float,
+                   baseline_test: Assessment, elapsed: float) -> None:
+    print(f'{source}: Phi* = {result.phi:.6g}, map at Phi* {tuned.summary_line()}')
     print(f'  M(Phi*)               {result.average_inconsistency:.6g}')
     print(f'  M(1)                  {baseline_value:.6g} '
-          f'({"consistent" if baseline_consistent else "inconsistent"} at Phi = 1)')
+          f'({"consistent" if baseline_test.consistent else "inconsistent"} at Phi = 1)')
     print(f'  inconsistent scans    {int(result.consistency.inconsistent.sum())} of '
           f'{result.consistency.scan_count}')
     print(f'  evaluations           {len(result.profile_phi)}')
     print(f'  tuning time           {elapsed:.1f} s')
 
 
-def _report(source: str, result: TuningResult, model: SensorModel, baseline, baseline_test,
-            settings: TuningSettings, elapsed: float) -> dict:
-    content = report.result_report(result.consistency)
+def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorModel, baseline,
+            baseline_test: Assessment, settings: TuningSettings, elapsed: float) -> dict:
+    content = report.assessment_report(tuned)
     content.update({
         'source': source,
         'phi': result.phi,
         'average_inconsistency': result.average_inconsistency,
         'profile': {'phi': result.profile_phi, 'average_inconsistency': result.profile_value},
         'baseline_phi_1': {'average_inconsistency': baseline.value,
-                           'summary': baseline_test.summary()},
+                           'summary': baseline_test.result.summary(),
+                           'summary_line': baseline_test.summary_line()},
         'search': {key: value for key, value in vars(settings).items() if key != 'parameters'},
         'sensor_model': vars(model),
         'poses': result.poses,
@@ -201,12 +184,11 @@ def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
     plots.save_figure(figure, path)
 
 
-def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses, baseline_test,
-               result: TuningResult) -> None:
+def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses,
+               baseline_test: Assessment, result: TuningResult, tuned: Assessment) -> None:
     from map_consistency_ros.cli import plots
     figure, axes = plots.plt.subplots(1, 2, figsize=(14, 7))
     plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
-    plots.plot_map(axes[1], profile.scans_at(result.poses), result.consistency,
-                   f'Phi* = {result.phi:.4g}')
+    plots.plot_map(axes[1], profile.scans_at(result.poses), tuned, f'Phi* = {result.phi:.4g}')
     plots.save_figure(figure, path)
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from map_consistency_ros.core import statistics
 from map_consistency_ros.core.measure import PairMeasures, pair_measures, point_distances
+from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.spatial_index import candidate_pairs, extents_overlap
 
@@ -25,16 +26,29 @@ Progress = Callable[[int, int], None]
 class ConsistencyParameters:
     """Confidence levels and robustifications of the test (defaults: see README, "Parameters")."""
 
-    alpha: float = 0.01  # pairwise test level (paper's alpha; original --normal-err)
-    local_alpha: float = 0.05  # level used to fit s_i on the incremental solution (--incr-normal-err)
-    failure_probability: float = 0.015  # Bernoulli p of one failed pairwise test (--binomial-prob)
-    binomial_alpha: float = 0.01  # cascaded test level (paper's alpha'; --binomial-err)
-    local_window: int = 40  # temporally adjacent scans that fit s_i, half on each side (original: +-20)
-    min_points: int = 10  # pairs with fewer inconsistent points (after trimming) are not tested
-    trim_largest: int = 10  # drop this many largest distances of a pair before its statistic
-    default_scale: float = 0.03  # s_i of a scan whose neighbourhood gives no estimate (metres)
-    min_scale: float = 0.0  # floor on every s_i (metres)
-    flag_window: int = 0  # keep a flag only with another flagged scan within this many indices (0: off)
+    # Originals' option names: --normal-err, --incr-normal-err, --binomial-prob, --binomial-err.
+    alpha: float = parameter(0.01, "pairwise test level (the paper's alpha)", '', (1e-9, 0.5))
+    local_alpha: float = parameter(
+        0.05, 'level of the local scale fit on the incremental solution', '', (1e-9, 0.5))
+    failure_probability: float = parameter(
+        0.015, 'probability that one pairwise test fails by chance', '', (1e-9, 0.5))
+    binomial_alpha: float = parameter(
+        0.01, "level of the cascaded (binomial) test per scan (the paper's alpha')", '',
+        (1e-9, 0.5))
+    local_window: int = parameter(
+        40, 'temporally adjacent scans that fit a local scale, half on each side', '',
+        (0, 1000))
+    min_points: int = parameter(
+        10, 'pairs with fewer inconsistent points (after trimming) are not tested', '',
+        (1, 100_000))
+    trim_largest: int = parameter(
+        10, 'largest distances of a pair dropped before its statistic', '', (0, 1000))
+    default_scale: float = parameter(
+        0.03, 'scale s_i of a scan whose neighbourhood gives no estimate', 'm', (1e-6, 10.0))
+    min_scale: float = parameter(0.0, 'floor on every local scale s_i', 'm', (0.0, 10.0))
+    flag_window: int = parameter(
+        0, 'keep a flag only with another flagged scan within this many indices (0: off)', '',
+        (0, 1000))
 
     def __post_init__(self) -> None:
         for name in ('alpha', 'local_alpha', 'failure_probability', 'binomial_alpha'):
@@ -150,18 +164,35 @@ def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
     return kept
 
 
+def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
+                     parameters: ConsistencyParameters,
+                     robust: tuple[np.ndarray, np.ndarray] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Which pairs have enough points to test, and their trimmed Psi_ij (NaN where untested).
+
+    `robust` are the pairs' trimmed (M_ij, n_ij) (`_robust_sums`) when the caller keeps them
+    per pair as it measures them (the incremental monitor), else they are computed here.
+    """
+    distance_sum, count = (_robust_sums(measures, parameters.trim_largest) if robust is None
+                           else robust)
+    tested = count >= parameters.min_points
+    return tested, statistics.standardized_inconsistency(
+        distance_sum, np.where(tested, count, 0), pair_scale)
+
+
 def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
-                   parameters: ConsistencyParameters) -> ConsistencyResult:
-    """The pairwise and cascaded tests on already measured pairs (no geometry)."""
+                   parameters: ConsistencyParameters,
+                   robust: tuple[np.ndarray, np.ndarray] | None = None) -> ConsistencyResult:
+    """The pairwise and cascaded tests on already measured pairs (no geometry).
+
+    `robust`: see `robust_statistic`.
+    """
     scales = np.asarray(scales, dtype=np.float64)
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
-    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
-    tested = count >= parameters.min_points
     pairs = measures.pairs
     pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]
-    statistic = statistics.standardized_inconsistency(distance_sum, np.where(tested, count, 0),
-                                                      pair_scale)
+    tested, statistic = robust_statistic(measures, pair_scale, parameters, robust)
     failed = tested & (statistic > statistics.normal_quantile(parameters.alpha))
     overlap_counts = (np.bincount(pairs[tested, 0], minlength=scan_count)
                       + np.bincount(pairs[tested, 1], minlength=scan_count))
@@ -259,8 +290,15 @@ def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
     flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
     candidates = np.flatnonzero(result.failed & flagged)
     order = np.argsort(-result.statistic[candidates], kind='stable')
+    return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)
+
+
+def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                   min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
+    scales inside the other scan's polygon."""
     points = []
-    for pair in candidates[order[:max_pairs]]:
+    for pair in rows:
         i, j = (int(v) for v in result.pairs[pair])
         limit = min_depth * max(result.scales[i], result.scales[j])
         of_points_of_j, of_points_of_i = point_distances(scans, i, j)

@@ -328,3 +328,4 @@ def point_distances(scans: ScanSet, i: int, j: int) -> tuple[np.ndarray, np.ndar
                         model.angle_min, model.angle_increment, scans.full_circle, False,
                         int(polygon), int(other), distances[row])
     return distances[0], distances[1]
+

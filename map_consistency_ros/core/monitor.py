@@ -29,10 +29,13 @@ import numba
 import numpy as np
 
 from map_consistency_ros.core import se2
+# _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  evaluate_pairs, local_scales)
+                                                  _robust_sums, evaluate_pairs, local_scales)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
+                                                check_constraint_rows, split_constraint_rows)
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
 
@@ -40,6 +43,10 @@ from map_consistency_ros.core.spatial_index import ScanExtentIndex
 # serially (tens of ms on a busy 2-core machine, bench/bench_monitor.py); a keyframe's update
 # measures about a hundred.
 PARALLEL_MIN_PAIRS = 1000
+# The compiled kernel holds the GIL while it runs: batches of at most this many pairs keep a
+# live node's subscriptions and its shutdown responsive during a large update (a loop
+# closure, a burst of keyframes).
+MEASURE_CHUNK = 1024
 # Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
 _SLOT_BITS = 31
 
@@ -48,19 +55,31 @@ _SLOT_BITS = 31
 class MonitorSettings:
     """Bookkeeping of the monitor (the statistics are in ConsistencyParameters)."""
 
-    laser_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # laser pose in the keyframe frame
-    stamp_tolerance: float = 1e-3  # seconds between a pose stamp and its scan's stamp
-    max_buffered_scans: int = 2000  # scans waiting for a pose; the oldest are dropped beyond
-    move_tolerance: float = 0.01  # metres a keyframe must move to be measured again
-    move_angle_tolerance: float = 0.005  # radians, idem
-    cell_size: float = 8.0  # metres, cell of the spatial index of scan extents
+    laser_offset: tuple[float, float, float] = parameter(
+        (0.0, 0.0, 0.0), 'pose [x, y, yaw] of the laser in the keyframe frame', 'm, m, rad')
+    stamp_tolerance: float = parameter(
+        1e-3, 'largest |pose stamp - scan stamp| of a keyframe', 's', (0.0, 1.0))
+    max_buffered_scans: int = parameter(
+        2000, 'scans waiting for a pose; the oldest are dropped (and counted) beyond', '',
+        (1, 1_000_000))
+    move_tolerance: float = parameter(
+        0.01, 'a keyframe moving further is measured again', 'm', (0.0, 10.0))
+    move_angle_tolerance: float = parameter(
+        0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
+    cell_size: float = parameter(
+        8.0, 'cell of the spatial index of scan extents, about a scan\'s extent', 'm',
+        (0.1, 1000.0))
+    max_pose_extent: float = parameter(
+        1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
+        (1.0, 1e9))
 
     def __post_init__(self) -> None:
         if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
             raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
         if self.max_buffered_scans < 1:
             raise ValueError('max_buffered_scans must be at least 1')
-        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size'):
+        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size',
+                     'max_pose_extent'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'{name} must be a finite non-negative number, got {value}')
@@ -99,6 +118,8 @@ class MonitorSnapshot:
     buffered_scans: int = 0
     unmatched_poses: int = 0
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
+    dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
+    poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
 
     @property
     def keyframe_count(self) -> int:
@@ -155,14 +176,18 @@ def _key_slots(keys: np.ndarray) -> np.ndarray:
 
 
 class _PairCache:
-    """Pair measures of slot pairs (low, high) in growable arrays, insertion order."""
+    """Pair measures of slot pairs (low, high) in growable arrays, insertion order, with each
+    pair's trimmed (M_ij, n_ij) of the test, computed once when the pair is measured."""
 
-    def __init__(self, keep_largest: int) -> None:
+    def __init__(self, keep_largest: int, trim: int) -> None:
         self.size = 0
+        self._trim = trim
         self._pairs = np.zeros((64, 2), dtype=np.int64)
         self._distance_sum = np.zeros(64)
         self._point_count = np.zeros(64, dtype=np.int64)
         self._largest = np.zeros((64, keep_largest))
+        self._trimmed_sum = np.zeros(64)
+        self._trimmed_count = np.zeros(64, dtype=np.int64)
 
     @property
     def pairs(self) -> np.ndarray:
@@ -173,7 +198,8 @@ class _PairCache:
         return _pair_keys(self.pairs[:, 0], self.pairs[:, 1])
 
     def _arrays(self) -> tuple[np.ndarray, ...]:
-        return self._pairs, self._distance_sum, self._point_count, self._largest
+        return (self._pairs, self._distance_sum, self._point_count, self._largest,
+                self._trimmed_sum, self._trimmed_count)
 
     def _keep(self, keep: np.ndarray) -> None:
         kept = int(np.count_nonzero(keep))
@@ -197,7 +223,8 @@ class _PairCache:
         end = self.size + keys.size
         if end > self._pairs.shape[0]:
             capacity = max(2 * self._pairs.shape[0], end)
-            self._pairs, self._distance_sum, self._point_count, self._largest = (
+            (self._pairs, self._distance_sum, self._point_count, self._largest,
+             self._trimmed_sum, self._trimmed_count) = (
                 np.concatenate([array, np.zeros((capacity - array.shape[0],) + array.shape[1:],
                                                 dtype=array.dtype)])
                 for array in self._arrays())
@@ -205,6 +232,8 @@ class _PairCache:
         self._distance_sum[self.size:end] = measures.distance_sum
         self._point_count[self.size:end] = measures.point_count
         self._largest[self.size:end] = measures.largest
+        self._trimmed_sum[self.size:end], self._trimmed_count[self.size:end] = _robust_sums(
+            measures, self._trim)
         self.size = end
 
     def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
@@ -219,6 +248,10 @@ class _PairCache:
         return PairMeasures(pairs=pairs, distance_sum=self._distance_sum[:self.size].copy(),
                             point_count=self._point_count[:self.size].copy(),
                             largest=self._largest[:self.size])
+
+    def robust(self) -> tuple[np.ndarray, np.ndarray]:
+        """The trimmed (M_ij, n_ij) of the cached pairs, in the order of `measures`."""
+        return self._trimmed_sum[:self.size].copy(), self._trimmed_count[:self.size].copy()
 
 
 class _Keyframes:
@@ -275,14 +308,17 @@ class ConsistencyMonitor:
         self._buffer: OrderedDict[float, np.ndarray] = OrderedDict()
         self._keyframes: _Keyframes | None = None
         self._index = ScanExtentIndex(self.settings.cell_size)
-        self._current = _PairCache(self._keep)
-        self._local = _PairCache(self._keep)
+        trim = self.parameters.trim_largest
+        self._current = _PairCache(self._keep, trim)
+        self._local = _PairCache(self._keep, trim)
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
         self._result: ConsistencyResult | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
-        self._constraints = np.zeros((0, 11))
+        self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
+        self.dropped_scans = 0  # pushed out of the full buffer
+        self._newest_scan = -math.inf
 
     # -- input -------------------------------------------------------------------------------
 
@@ -322,8 +358,19 @@ class ConsistencyMonitor:
         if self._registered_slot(stamp) is not None:
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
         self._buffer[stamp] = ranges
+        self._newest_scan = max(self._newest_scan, stamp)
         while len(self._buffer) > self.settings.max_buffered_scans:
             self._buffer.pop(min(self._buffer))
+            self.dropped_scans += 1
+
+    def pose_problem(self, pose: np.ndarray) -> str:
+        """Why a single pose (3,) is unusable ('' when it is usable)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (3,) or not np.isfinite(pose).all():
+            return f'non-finite values or an unusable quaternion ({pose.tolist()})'
+        if np.abs(pose[:2]).max() > self.settings.max_pose_extent:
+            return f'beyond max_pose_extent = {self.settings.max_pose_extent:g} m'
+        return ''
 
     @property
     def pending(self) -> bool:
@@ -347,7 +394,13 @@ class ConsistencyMonitor:
         finite = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
         if not finite.all():
             warnings.append(f'{int((~finite).sum())} trajectory poses with non-finite values '
-                            'skipped')
+                            '(or an unusable quaternion) skipped')
+        with np.errstate(invalid='ignore'):
+            absurd = finite & (np.abs(poses[:, :2]) > self.settings.max_pose_extent).any(axis=1)
+        if absurd.any():
+            warnings.append(f'{int(absurd.sum())} trajectory poses beyond max_pose_extent = '
+                            f'{self.settings.max_pose_extent:g} m skipped')
+        finite &= ~absurd
         stamps, poses = stamps[finite], poses[finite]
         order = np.argsort(stamps, kind='stable')
         stamps, poses = stamps[order], poses[order]
@@ -367,8 +420,9 @@ class ConsistencyMonitor:
         """Measure every pair again from scratch (the incremental caches are rebuilt)."""
         start = time.perf_counter()
         self._index = ScanExtentIndex(self.settings.cell_size)
-        self._current = _PairCache(self._keep)
-        self._local = _PairCache(self._keep)
+        trim = self.parameters.trim_largest
+        self._current = _PairCache(self._keep, trim)
+        self._local = _PairCache(self._keep, trim)
         slots = np.arange(self.keyframe_count)
         measured = self._measure(slots, slots) if slots.size else 0
         self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
@@ -384,21 +438,7 @@ class ConsistencyMonitor:
         non-finite values, an edge from a stamp to itself, or an information matrix that is not
         symmetric positive definite.
         """
-        rows = np.asarray(rows, dtype=np.float64)
-        if rows.ndim != 2 or rows.shape[1] != 11:
-            raise ValueError(f'constraint rows must have shape (E, 11), got {rows.shape}')
-        bad = ~np.isfinite(rows).all(axis=1)
-        if bad.any():
-            raise ValueError(f'constraint row {int(np.flatnonzero(bad)[0])} has non-finite values')
-        loops = np.flatnonzero(rows[:, 0] == rows[:, 1])
-        if loops.size:
-            raise ValueError(f'constraint row {int(loops[0])} connects stamp {rows[loops[0], 0]} '
-                             'to itself')
-        information = _information_matrices(rows[:, 5:])
-        not_definite = np.flatnonzero(np.linalg.eigvalsh(information)[:, 0] <= 0.0)
-        if not_definite.size:
-            raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
-                             'that is not positive definite')
+        rows = check_constraint_rows(rows)
         self._constraints = rows.copy()
 
     @property
@@ -421,16 +461,17 @@ class ConsistencyMonitor:
         stamps = keyframes.stamps[order]
         rows = self._constraints
         tolerance = self.settings.stamp_tolerance
-        edge_from, edge_to = _match(rows[:, 0], stamps, tolerance), _match(rows[:, 1], stamps,
-                                                                          tolerance)
+        stamp_from, stamp_to, measurements, information = split_constraint_rows(rows)
+        edge_from, edge_to = (_match(stamp_from, stamps, tolerance),
+                              _match(stamp_to, stamps, tolerance))
         known = (edge_from >= 0) & (edge_to >= 0) & (edge_from != edge_to)
         if not known.any():
             return None
         fixed = np.zeros(stamps.size, dtype=bool)
         fixed[0] = True
         return PoseGraph(poses=keyframes.poses[order], edge_from=edge_from[known],
-                         edge_to=edge_to[known], measurements=rows[known, 2:5],
-                         information=_information_matrices(rows[known, 5:]), fixed=fixed)
+                         edge_to=edge_to[known], measurements=measurements[known],
+                         information=information[known], fixed=fixed)
 
     def snapshot(self) -> MonitorSnapshot:
         """Copies of the keyframes in stamp order and the last verdict."""
@@ -440,16 +481,32 @@ class ConsistencyMonitor:
                                    poses=empty, incremental_poses=empty, ranges=np.zeros((0, 0)),
                                    model=self._model, laser_offset=self._offset.copy(),
                                    result=None, buffered_scans=len(self._buffer),
-                                   unmatched_poses=self._unmatched, last_update=self._last)
+                                   unmatched_poses=self._unmatched, last_update=self._last,
+                                   **self._loss())
         keyframes = self._keyframes
         order = keyframes.order()
+        if np.array_equal(order, np.arange(keyframes.count)):
+            # A slot's ranges never change once registered: a read-only view is a snapshot,
+            # and copying every scan on every update would grow with the map.
+            ranges = keyframes.ranges[:keyframes.count].view()
+            ranges.setflags(write=False)
+        else:
+            ranges = keyframes.ranges[order]
         return MonitorSnapshot(
             ids=order.astype(np.int64), stamps=keyframes.stamps[order],
             poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
-            ranges=keyframes.ranges[order], model=self._model,
+            ranges=ranges, model=self._model,
             laser_offset=self._offset.copy(), result=self._result,
             buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
-            last_update=self._last)
+            last_update=self._last, **self._loss())
+
+    def _loss(self) -> dict[str, int]:
+        # Scans arrive in stamp order: a pose older than the newest scan and still without
+        # one names a scan that was lost (or refused).
+        unmatched = self._path_stamps[self._path_slots() < 0]
+        late = unmatched < self._newest_scan - self.settings.stamp_tolerance
+        return dict(dropped_scans=self.dropped_scans,
+                    poses_without_scan=int(np.count_nonzero(late)))
 
     # -- bookkeeping -------------------------------------------------------------------------
 
@@ -540,8 +597,14 @@ class ConsistencyMonitor:
         pairs = _key_slots(keys)
         involved = np.unique(pairs)
         scans = self._scans(involved, poses)
-        with _threads_for(len(pairs)):
-            return pair_measures(scans, np.searchsorted(involved, pairs), keep_largest=self._keep)
+        local = np.searchsorted(involved, pairs)
+        parts = []
+        for start in range(0, len(local), MEASURE_CHUNK):
+            chunk = local[start:start + MEASURE_CHUNK]
+            with _threads_for(len(chunk)):
+                parts.append(pair_measures(scans, chunk, keep_largest=self._keep))
+        return PairMeasures(*(np.concatenate([getattr(part, name) for part in parts])
+                              for name in ('pairs', 'distance_sum', 'point_count', 'largest')))
 
     def _measure(self, changed: np.ndarray, new: np.ndarray) -> int:
         """Measure pairs touching `changed` slots (`new` among them), update the local
@@ -566,7 +629,7 @@ class ConsistencyMonitor:
         ranks = None if np.array_equal(order, np.arange(keyframes.count)) else rank_of_slot
         scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
         self._result = evaluate_pairs(self._current.measures(ranks), scales, keyframes.count,
-                                      self.parameters)
+                                      self.parameters, robust=self._current.robust())
         return measured
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
@@ -592,11 +655,3 @@ def _subset(measures: PairMeasures, keep: np.ndarray) -> PairMeasures:
     return PairMeasures(pairs=measures.pairs[keep], distance_sum=measures.distance_sum[keep],
                         point_count=measures.point_count[keep], largest=measures.largest[keep])
 
-
-def _information_matrices(upper: np.ndarray) -> np.ndarray:
-    """(E, 3, 3) symmetric matrices from rows of the upper triangle (I11 I12 I13 I22 I23 I33)."""
-    rows, cols = np.triu_indices(3)
-    matrices = np.zeros((upper.shape[0], 3, 3))
-    matrices[:, rows, cols] = upper
-    matrices[:, cols, rows] = upper
-    return matrices

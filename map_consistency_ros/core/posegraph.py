@@ -3,12 +3,28 @@
 Vertices are addressed by index 0..N-1. An edge from i to j measures the pose of j in the
 frame of i. Edges between consecutive vertices (|from - to| == 1) are odometry; all others
 are loop closures, the only edges a robust back-end may down-weight.
+
+This module also owns the constraint row format in which the node and bags carry a graph's
+edges between stamped keyframes: `CONSTRAINT_FIELDS`, one row per edge.
 """
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from map_consistency_ros.core import se2
+
+# [stamp_from, stamp_to, dx, dy, dtheta, I11, I12, I13, I22, I23, I33]: stamps in seconds,
+# the pose of `to` in the frame of `from`, the upper triangle of the 3x3 information matrix.
+CONSTRAINT_FIELDS = ('stamp_from', 'stamp_to', 'dx', 'dy', 'dtheta',
+                     'I11', 'I12', 'I13', 'I22', 'I23', 'I33')
+CONSTRAINT_WIDTH = len(CONSTRAINT_FIELDS)
+_STAMPS, _MEASUREMENT, _UPPER_TRIANGLE = slice(0, 2), slice(2, 5), slice(5, 11)
+_UPPER = np.triu_indices(3)
+# Information entries beyond this (a standard deviation below a micrometre) make the
+# normal equations overflow or lose every other edge to rounding: no honest tuning.
+MAX_INFORMATION = 1e12
 
 
 @dataclass(frozen=True)
@@ -108,3 +124,86 @@ def _check_edges(count: int, edge_from: np.ndarray, edge_to: np.ndarray,
         raise ValueError('an information matrix is not symmetric')
     if information.size and np.any(np.linalg.eigvalsh(information)[:, 0] <= 0.0):
         raise ValueError('an information matrix is not positive definite')
+
+
+def information_upper(information: np.ndarray) -> np.ndarray:
+    """(E, 6) upper triangles (I11 I12 I13 I22 I23 I33) of (E, 3, 3) information matrices."""
+    return np.asarray(information, dtype=np.float64)[:, _UPPER[0], _UPPER[1]]
+
+
+def information_from_upper(upper: np.ndarray) -> np.ndarray:
+    """(E, 3, 3) symmetric matrices from (E, 6) upper triangles."""
+    upper = np.asarray(upper, dtype=np.float64)
+    matrices = np.zeros((upper.shape[0], 3, 3))
+    matrices[:, _UPPER[0], _UPPER[1]] = upper
+    matrices[:, _UPPER[1], _UPPER[0]] = upper
+    return matrices
+
+
+def constraint_rows(stamp_from: np.ndarray, stamp_to: np.ndarray, measurements: np.ndarray,
+                    information: np.ndarray) -> np.ndarray:
+    """(E, 11) rows laid out as CONSTRAINT_FIELDS."""
+    return np.column_stack([stamp_from, stamp_to, measurements, information_upper(information)])
+
+
+def split_constraint_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                      np.ndarray]:
+    """(stamp_from (E,), stamp_to (E,), measurements (E, 3), information (E, 3, 3)) of rows."""
+    stamps = rows[:, _STAMPS]
+    return (stamps[:, 0], stamps[:, 1], rows[:, _MEASUREMENT],
+            information_from_upper(rows[:, _UPPER_TRIANGLE]))
+
+
+def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
+    """Rows as a float (E, 11) array; ValueError on a wrong shape, non-finite values, an edge
+    from a stamp to itself, or an information matrix that is not symmetric positive definite."""
+    rows = np.asarray(rows, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != CONSTRAINT_WIDTH:
+        raise ValueError(f'constraint rows must have shape (E, {CONSTRAINT_WIDTH}), '
+                         f'got {rows.shape}')
+    bad = ~np.isfinite(rows).all(axis=1)
+    if bad.any():
+        raise ValueError(f'constraint row {int(np.flatnonzero(bad)[0])} has non-finite values')
+    stamp_from, stamp_to, _, information = split_constraint_rows(rows)
+    huge = np.flatnonzero(np.abs(rows[:, _UPPER_TRIANGLE]).max(axis=1, initial=0.0)
+                          > MAX_INFORMATION)
+    if huge.size:
+        raise ValueError(f'constraint row {int(huge[0])} has information entries beyond '
+                         f'{MAX_INFORMATION:g}, which overflow the solver')
+    loops = np.flatnonzero(stamp_from == stamp_to)
+    if loops.size:
+        raise ValueError(f'constraint row {int(loops[0])} connects stamp {stamp_from[loops[0]]} '
+                         'to itself')
+    with np.errstate(invalid='ignore', over='ignore'):
+        smallest = np.linalg.eigvalsh(information)[:, 0] if rows.size else np.zeros(0)
+    not_definite = np.flatnonzero(~(smallest > 0.0))
+    if not_definite.size:
+        raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
+                         'that is not positive definite')
+    return rows
+
+
+def tuning_problem(graph: PoseGraph) -> str | None:
+    """Why DCS tuning of `graph` could not be honest, None when it can be tuned.
+
+    Refused: a disconnected graph (the parts float freely against each other, any Phi gives
+    some map), one without loop closures (DCS scales only those: every Phi gives the same
+    map), and information entries beyond MAX_INFORMATION (the solve overflows or drowns).
+    """
+    count = graph.vertex_count
+    if graph.edge_count < count - 1:
+        return (f'{graph.edge_count} constraints for {count} keyframes: a connected graph needs '
+                f'at least {count - 1}')
+    adjacency = coo_matrix((np.ones(graph.edge_count), (graph.edge_from, graph.edge_to)),
+                           shape=(count, count))
+    parts = connected_components(adjacency, directed=False)[0]
+    if parts > 1:
+        return (f'the constraints split the {count} keyframes into {parts} disconnected parts; '
+                'every keyframe must be linked to the others')
+    if not graph.is_loop_closure.any():
+        return 'no loop closure among the constraints: DCS has nothing to tune'
+    largest = float(np.abs(graph.information).max()) if graph.edge_count else 0.0
+    if largest > MAX_INFORMATION:
+        return (f'information entries up to {largest:.3g} overflow the solver (at most '
+                f'{MAX_INFORMATION:g})')
+    return None

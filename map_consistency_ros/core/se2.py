@@ -7,6 +7,28 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def yaw_from_quaternion(x, y, z, w):
+    """Rotation about z of (possibly unnormalised) quaternions, scalars or arrays.
+
+    NaN where a quaternion has no heading: a non-finite component (arctan2 would turn an
+    infinite one into a plausible angle) or a zero norm.
+    """
+    x, y, z, w = (np.asarray(v, dtype=np.float64) for v in (x, y, z, w))
+    # w^2 + x^2 - y^2 - z^2 rather than 1 - 2 (y^2 + z^2): the same for unit quaternions,
+    # and independent of the norm for the others.
+    with np.errstate(invalid='ignore', over='ignore'):
+        yaw = np.arctan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+        usable = (np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & np.isfinite(w)
+                  & ((x * x + y * y + z * z + w * w) > 0.0))
+    yaw = np.where(usable, yaw, np.nan)
+    return float(yaw) if yaw.ndim == 0 else yaw
+
+
+def quaternion_from_yaw(yaw: float) -> tuple[float, float]:
+    """(z, w) of the unit quaternion of a rotation by `yaw` about z (x = y = 0)."""
+    return float(np.sin(0.5 * yaw)), float(np.cos(0.5 * yaw))
+
+
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a (+) b: the pose b, given relative to a, expressed in a's parent frame."""
     a = np.asarray(a, dtype=np.float64)

@@ -24,6 +24,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   average_inconsistency, check_consistency)
 from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import candidate_pairs
@@ -40,7 +41,7 @@ class TuningSettings:
     run at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
     size, so memory is rarely the limit. `flat_tolerance`: the golden section stops once its two
     inner M values differ by less than this fraction of them (the profile is flat within its
-    noise there; 0 refines to `tolerance`). `move_tolerance` (metres): a pair's M_ij is reused
+    noise there; 0 refines to `tolerance`). `reuse_tolerance` (metres): a pair's M_ij is reused
     from the map it was last measured on while its scans' relative pose moves every end point by
     at most this much, which bounds the change of M_ij by the pair's valid end points times it
     (0: only unmoved pairs are reused). Each solve stops, as GTSAM's, once a step lowers the cost
@@ -50,17 +51,26 @@ class TuningSettings:
     takes twice the iterations).
     """
 
-    phi_min: float = 1e-6
-    phi_max: float = 16.0
-    grid_steps: int = 40
-    tolerance: float = 1e-4
-    sqrt_grid: bool = True
-    iterations: int = 50
-    workers: int = 0
-    flat_tolerance: float = 1e-3
-    move_tolerance: float = 1e-4
-    relative_tolerance: float = 1e-10
-    initial_damping: float = 1e-9
+    phi_min: float = parameter(1e-6, 'smallest DCS Phi of the search', '', (1e-12, 1e6))
+    phi_max: float = parameter(16.0, 'largest DCS Phi of the search', '', (1e-9, 1e9))
+    grid_steps: int = parameter(40, 'grid points of the Phi search', '', (3, 10_000))
+    tolerance: float = parameter(1e-4, 'the Phi search stops when its bracket is narrower', '',
+                                 (1e-12, 1e3))
+    sqrt_grid: bool = parameter(True, 'space the grid evenly in sqrt(Phi), else in Phi')
+    iterations: int = parameter(50, 'solver iterations per DCS solve', '', (1, 10_000))
+    workers: int = parameter(0, 'DCS solves at once (0: one per CPU, at most 4)', '', (0, 64))
+    flat_tolerance: float = parameter(
+        1e-3, 'the golden section stops once its inner M values differ by less than this '
+        'fraction (0: refine to tolerance)', '', (0.0, 1.0))
+    reuse_tolerance: float = parameter(
+        1e-4, "a pair's M_ij is reused while its scans' relative pose moves no end point "
+        'further than this', 'm', (0.0, 1.0))
+    relative_tolerance: float = parameter(
+        1e-10, 'a DCS solve stops once a step lowers the cost by less than this fraction', '',
+        (0.0, 1.0))
+    initial_damping: float = parameter(
+        1e-9, "a DCS solve's first damping, times the largest normal-equation diagonal", '',
+        (1e-16, 1.0))
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:
@@ -70,8 +80,8 @@ class TuningSettings:
             raise ValueError(f'grid_steps must be at least 3, got {self.grid_steps}')
         if not self.tolerance > 0.0 or self.iterations < 1 or self.workers < 0:
             raise ValueError('tolerance must be positive, iterations >= 1 and workers >= 0')
-        if not min(self.flat_tolerance, self.move_tolerance, self.relative_tolerance) >= 0.0:
-            raise ValueError('flat_tolerance, move_tolerance and relative_tolerance must not be '
+        if not min(self.flat_tolerance, self.reuse_tolerance, self.relative_tolerance) >= 0.0:
+            raise ValueError('flat_tolerance, reuse_tolerance and relative_tolerance must not be '
                              'negative')
         if not self.initial_damping > 0.0:
             raise ValueError(f'initial_damping must be positive, got {self.initial_damping}')
@@ -112,7 +122,7 @@ class InconsistencyProfile:
 
     Shared across evaluations: the sparsity analysis and ordering of the normal equations, the
     scans (only their poses change) and the pair measures of the maps measured so far (pairs
-    whose relative pose stayed within `move_tolerance` are not measured again). Every DCS solve
+    whose relative pose stayed within `reuse_tolerance` are not measured again). Every DCS solve
     starts from the graph's initial guess, so the solution at each Phi does not depend on the
     order of evaluation.
     """
@@ -178,7 +188,7 @@ class InconsistencyProfile:
             return math.inf
         scans = self.scans_at(result.poses)
         self._measured = _measure_moved(scans, candidate_pairs(scans.extents), self._measured,
-                                        self.settings.move_tolerance)
+                                        self.settings.reuse_tolerance)
         return average_inconsistency(self._measured.measures)
 
 

@@ -24,6 +24,7 @@ from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoo
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
                                                   evaluate_pairs, local_pairs, local_scales)
+from map_consistency_ros.core.explanation import ExplanationSettings, explain
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.spatial_index import candidate_pairs
@@ -111,25 +112,7 @@ def _single_threaded() -> None:
 def measure_suite(maps: Sequence[SuiteMap], settings: MeasureSettings, workers: int | None = None,
                   progress: Progress | None = None) -> list[MeasuredMap]:
     """measure_map over all maps with a process pool; results in the order of `maps`."""
-    workers = workers or os.cpu_count() or 1
-    results: list[MeasuredMap | None] = [None] * len(maps)
-    if workers == 1:
-        for done, suite_map in enumerate(maps, start=1):
-            results[done - 1] = measure_map(suite_map, settings)
-            if progress:
-                progress(done, len(maps))
-        return results
-    # spawned, not forked: numba's thread pool in this process does not survive a fork
-    context = multiprocessing.get_context('spawn')
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_single_threaded) as pool:
-        futures = {pool.submit(measure_map, suite_map, settings): index
-                   for index, suite_map in enumerate(maps)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            results[futures[future]] = future.result()
-            if progress:
-                progress(done, len(maps))
-    return results
+    return pooled(measure_map, maps, (settings,), workers, progress)
 
 
 def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParameters,
@@ -182,6 +165,65 @@ def sweep_baseline(measured: Sequence[MeasuredMap], base: BaselineParameters,
         sweep = metrics.threshold_sweep(statistic, truth)
         rows.append(np.column_stack([np.full(len(sweep), quantile), sweep]))
     return np.concatenate(rows)
+
+
+def two_stage_flags(suite_map: SuiteMap, settings: MeasureSettings, alphas: Sequence[float],
+                    tolerances: Sequence[float]) -> np.ndarray:
+    """(A, T) bool: both stages flag the map at pairwise level alphas[a] and misalignment
+    tolerance tolerances[t] (every other setting at its default)."""
+    scans = map_scans(suite_map, settings.max_range)
+    reference = scans.with_poses(suite_map.reference_poses)
+    keep = settings.test.trim_largest
+    local = pair_measures(reference, local_pairs(reference, settings.test.local_window), keep)
+    measures = pair_measures(scans, candidate_pairs(scans.extents), keep)
+    flags = np.zeros((len(alphas), len(tolerances)), dtype=bool)
+    for row, alpha in enumerate(alphas):
+        parameters = replace(settings.test, alpha=alpha)
+        result = evaluate_pairs(measures, local_scales(local, scans.scan_count, parameters),
+                                scans.scan_count, parameters)
+        for column, tolerance in enumerate(tolerances):
+            flags[row, column] = not explain(
+                scans, result, ExplanationSettings(misalignment_tolerance=tolerance)).consistent
+    return flags
+
+
+def sweep_two_stage(maps: Sequence[SuiteMap], settings: MeasureSettings, alphas: Sequence[float],
+                    tolerances: Sequence[float], workers: int | None = None,
+                    progress: Progress | None = None) -> np.ndarray:
+    """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite."""
+    truth = np.array([item.inconsistent for item in maps], dtype=bool)
+    flags = pooled(two_stage_flags, maps, (settings, tuple(alphas), tuple(tolerances)),
+                    workers, progress)
+    rows = []
+    for row, alpha in enumerate(alphas):
+        for column, tolerance in enumerate(tolerances):
+            flagged = np.array([item[row, column] for item in flags])
+            rows.append((alpha, tolerance, *metrics.specificity_recall(flagged, truth)))
+    return np.array(rows)
+
+
+def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | None,
+            progress: Progress | None) -> list:
+    """function(map, *arguments) for every map in a process pool; results in map order."""
+    workers = workers or os.cpu_count() or 1
+    results: list = [None] * len(maps)
+    if workers == 1:
+        for done, item in enumerate(maps, start=1):
+            results[done - 1] = function(item, *arguments)
+            if progress:
+                progress(done, len(maps))
+        return results
+    # spawned, not forked: numba's thread pool in this process does not survive a fork
+    context = multiprocessing.get_context('spawn')
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                             initializer=_single_threaded) as pool:
+        futures = {pool.submit(function, item, *arguments): index
+                   for index, item in enumerate(maps)}
+        for done, future in enumerate(as_completed(futures), start=1):
+            results[futures[future]] = future.result()
+            if progress:
+                progress(done, len(maps))
+    return results
 
 
 def _keyframe_scans(log_path: Path, suite: SuiteParameters, max_range: float | None) -> ScanSet:

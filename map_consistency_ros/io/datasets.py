@@ -28,6 +28,7 @@ from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.io.carmen import CarmenLog, LaserAngles, read_carmen_log, sensor_model
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph
+from map_consistency_ros.io.messages import stamp_to_seconds
 
 
 @dataclass(frozen=True)
@@ -174,13 +175,13 @@ def read_raw_bag(path: str | Path) -> RawBag:
                     continue
                 message = reader.deserialize(raw, connection.msgtype)
                 if connection.topic == '/scan':
-                    scans.append((_seconds(message.header.stamp), message.ranges))
+                    scans.append((stamp_to_seconds(message.header.stamp), message.ranges))
                     angles = angles or LaserAngles(
                         start_angle=message.angle_min, fov=message.angle_max - message.angle_min,
                         resolution=message.angle_increment, max_range=message.range_max)
                 elif connection.topic == '/odom':
                     pose = message.pose.pose
-                    odometry.append((_seconds(message.header.stamp), pose.position.x,
+                    odometry.append((stamp_to_seconds(message.header.stamp), pose.position.x,
                                      pose.position.y, _yaw(pose.orientation)))
                 else:
                     offset = _laser_offset(message, offset)
@@ -226,13 +227,8 @@ def match_scans(log: CarmenLog, bag: RawBag) -> np.ndarray:
                      for found, stamp in zip(options, log.timestamps)], dtype=np.int64)
 
 
-def _seconds(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
 def _yaw(quaternion) -> float:
-    return float(np.arctan2(2.0 * (quaternion.w * quaternion.z + quaternion.x * quaternion.y),
-                            1.0 - 2.0 * (quaternion.y ** 2 + quaternion.z ** 2)))
+    return float(se2.yaw_from_quaternion(quaternion.x, quaternion.y, quaternion.z, quaternion.w))
 
 
 def _laser_offset(message, current: np.ndarray) -> np.ndarray:

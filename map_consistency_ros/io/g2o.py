@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.posegraph import (PoseGraph, information_from_upper,
+                                                information_upper)
 from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, open_text, parse_floats,
                                            parse_robotlaser)
 from map_consistency_ros.io.errors import InputError
 
-_UPPER = np.triu_indices(3)
 _LASER_OFFSET_TOLERANCE = 1e-6
 
 
@@ -107,7 +107,7 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
                                           se2.compose(pose, offset)))
     if graph.fixed.any():
         lines.append('FIX ' + ' '.join(str(vertex_id) for vertex_id in ids[graph.fixed]))
-    upper = graph.information[:, _UPPER[0], _UPPER[1]]
+    upper = information_upper(graph.information)
     for a, b, measurement, info in zip(ids[graph.edge_from], ids[graph.edge_to],
                                        graph.measurements, upper):
         lines.append(f'EDGE_SE2 {a} {b} {_numbers(measurement)} {_numbers(info)}')
@@ -181,9 +181,7 @@ class _Reader:
         for (a, b, _, line) in self.edges:
             if a == b:
                 raise InputError(self.source, f'edge connects vertex {a} to itself', line)
-        information = np.zeros((len(values), 3, 3))
-        information[:, _UPPER[0], _UPPER[1]] = values[:, 3:]
-        information[:, _UPPER[1], _UPPER[0]] = values[:, 3:]
+        information = information_from_upper(values[:, 3:])
         self._check_information(information)
         graph = PoseGraph(poses=poses, edge_from=edge_from, edge_to=edge_to,
                           measurements=values[:, :3], information=information, fixed=fixed)

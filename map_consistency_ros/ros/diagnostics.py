@@ -24,26 +24,48 @@ class MonitorHealth:
     phi: float | None  # tuned DCS Phi, None before a retune
     input_problems: int  # bad messages since start
     recent_problem: str  # the last bad message if it is recent, else ''
-    seconds_since_input: float | None  # None when nothing arrived yet
+    seconds_since_input: float | None  # None when nothing arrived yet, on the node's clock
     stale_timeout: float
+    queued_scans: int = 0  # received, not yet applied by the worker (the node is behind)
+    lost_scans: int = 0  # scans the node could not process: DDS losses, full queue or buffer
+    gap_scans: int = 0  # scans missing from the stamp sequence (an estimate)
+    poses_without_scan: int = 0  # keyframe poses older than the newest scan and still unmatched
+    resets: int = 0
+    last_reset: str = ''
+    verdict: str = ''  # the summary line of both stages, '' before the first verdict
+    misaligned_scans: int = 0
+    misaligned_regions: int = 0
+    changed_places: int = 0
+
+    @property
+    def loss(self) -> str:
+        """What was lost, '' when nothing was."""
+        parts = []
+        if self.lost_scans:
+            parts.append(f'{self.lost_scans} scans lost')
+        if self.poses_without_scan:
+            parts.append(f'{self.poses_without_scan} keyframe poses name scans never received')
+        return ', '.join(parts)
 
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     """(level, message): STALE without recent input, ERROR for an inconsistent map, WARN for
-    no verdict yet or a recent bad message, OK otherwise."""
+    no verdict yet, lost input or a recent bad message, OK otherwise."""
     if health.seconds_since_input is None:
         return DiagnosticStatus.STALE, 'no scan or trajectory received yet'
     if health.seconds_since_input > health.stale_timeout:
         return DiagnosticStatus.STALE, (f'no input for {health.seconds_since_input:.1f} s '
                                         f'(stale after {health.stale_timeout:g} s)')
+    loss = f'; {health.loss}' if health.loss else ''
     if health.consistent is False:
-        return DiagnosticStatus.ERROR, (f'map inconsistent: {health.inconsistent_scans} of '
-                                        f'{health.keyframes} scans fail')
+        return DiagnosticStatus.ERROR, f'map {health.verdict}{loss}'
     if health.consistent is None:
-        return DiagnosticStatus.WARN, 'no keyframe yet: no trajectory pose matches a scan'
+        return DiagnosticStatus.WARN, f'no keyframe yet: no trajectory pose matches a scan{loss}'
+    if loss:
+        return DiagnosticStatus.WARN, f'map {health.verdict} ({health.keyframes} scans){loss}'
     if health.recent_problem:
-        return DiagnosticStatus.WARN, f'map consistent; bad input: {health.recent_problem}'
-    return DiagnosticStatus.OK, f'map consistent ({health.keyframes} scans)'
+        return DiagnosticStatus.WARN, f'map {health.verdict}; bad input: {health.recent_problem}'
+    return DiagnosticStatus.OK, f'map {health.verdict} ({health.keyframes} scans)'
 
 
 def _optional(value: float | None, scale: float = 1.0, digits: int = 3) -> str:
@@ -60,12 +82,21 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'tested pairs': str(health.tested_pairs),
         'failed pairs': str(health.failed_pairs),
         'inconsistent scans': str(health.inconsistent_scans),
+        'misaligned scans': str(health.misaligned_scans),
+        'misaligned regions': str(health.misaligned_regions),
+        'changed places': str(health.changed_places),
         'unmatched poses': str(health.unmatched_poses),
         'update latency (ms)': _optional(health.update_latency, 1e3, 1),
         'phi': _optional(health.phi, digits=6),
         'input problems': str(health.input_problems),
         'last input problem': health.recent_problem or 'none',
         'seconds since input': _optional(health.seconds_since_input, digits=1),
+        'queued scans': str(health.queued_scans),
+        'lost scans': str(health.lost_scans),
+        'scans missing from stamps': str(health.gap_scans),
+        'poses without scan': str(health.poses_without_scan),
+        'resets': str(health.resets),
+        'last reset': health.last_reset or 'none',
     }
     return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
                             hardware_id=hardware_id,

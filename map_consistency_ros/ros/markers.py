@@ -1,7 +1,15 @@
-"""RViz markers of the monitor's verdict: one arrow per keyframe and the inconsistent points."""
+"""RViz markers of the verdict: one arrow per keyframe, the misaligned end points, the changed
+places and a legend.
+
+Keyframes are green (consistent), red (in a misaligned region) or grey (no pair to test); the
+end points of misaligned pairs are red points, changed places (people, moved objects) cyan
+spheres. `MarkerUpdates` keeps the markers the node has published and returns only those that
+changed (new or moved keyframes, new colours, a new verdict), so the cost of an update does not
+grow with the map; `all()` is the whole array for a subscriber that joins late.
+"""
 from __future__ import annotations
 
-import math
+from collections.abc import Callable
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -9,23 +17,22 @@ from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.explanation import Assessment
 from map_consistency_ros.core.monitor import MonitorSnapshot
 
 KEYFRAME_NAMESPACE = 'keyframes'
-POINTS_NAMESPACE = 'inconsistent_points'
+POINTS_NAMESPACE = 'misaligned_points'
+CHANGES_NAMESPACE = 'changed_places'
+LEGEND_NAMESPACE = 'legend'
 
 CONSISTENT = ColorRGBA(r=0.1, g=0.75, b=0.2, a=0.9)
 INCONSISTENT = ColorRGBA(r=0.9, g=0.1, b=0.1, a=1.0)
 UNTESTED = ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.7)  # no pair with enough overlap to test
-
-
-def keyframe_colours(snapshot: MonitorSnapshot) -> list[ColorRGBA]:
-    """Verdict colour of each keyframe in stamp order."""
-    result = snapshot.result
-    if result is None:
-        return [UNTESTED] * snapshot.keyframe_count
-    return [INCONSISTENT if bad else CONSISTENT if tested > 0 else UNTESTED
-            for bad, tested in zip(result.inconsistent.tolist(), result.overlap_counts.tolist())]
+CHANGED = ColorRGBA(r=0.0, g=0.8, b=0.9, a=0.6)
+LEGEND = ('green arrow: consistent keyframe\nred arrow: keyframe in a misaligned region\n'
+          'grey arrow: nothing to test yet\nred points: misaligned end points\n'
+          'cyan spheres: changed places (people, moved objects)')
 
 
 def _keyframe_marker(key: int, pose: np.ndarray, colour: ColorRGBA, frame_id: str,
@@ -33,8 +40,7 @@ def _keyframe_marker(key: int, pose: np.ndarray, colour: ColorRGBA, frame_id: st
     marker = Marker(ns=KEYFRAME_NAMESPACE, id=key, type=Marker.ARROW, action=Marker.ADD)
     marker.header.frame_id, marker.header.stamp = frame_id, stamp
     marker.pose.position.x, marker.pose.position.y = float(pose[0]), float(pose[1])
-    marker.pose.orientation.z = math.sin(pose[2] / 2.0)
-    marker.pose.orientation.w = math.cos(pose[2] / 2.0)
+    marker.pose.orientation.z, marker.pose.orientation.w = se2.quaternion_from_yaw(pose[2])
     marker.scale.x, marker.scale.y, marker.scale.z = 0.3, 0.06, 0.06
     marker.color = colour
     return marker
@@ -54,12 +60,89 @@ def _points_marker(points: np.ndarray, frame_id: str, stamp: Time) -> Marker:
     return marker
 
 
-def consistency_markers(snapshot: MonitorSnapshot, inconsistent_points: np.ndarray,
-                        frame_id: str, stamp: Time) -> MarkerArray:
-    """Arrow per keyframe (id = stable keyframe id, colour = verdict) and the inconsistent
-    end points (M, 2) as one POINTS marker, deleted when there are none."""
-    colours = keyframe_colours(snapshot)
-    markers = [_keyframe_marker(int(key), pose, colour, frame_id, stamp)
-               for key, pose, colour in zip(snapshot.ids.tolist(), snapshot.poses, colours)]
-    markers.append(_points_marker(inconsistent_points, frame_id, stamp))
-    return MarkerArray(markers=markers)
+def _changes_marker(assessment: Assessment, frame_id: str, stamp: Time) -> Marker:
+    marker = Marker(ns=CHANGES_NAMESPACE, id=0)
+    marker.header.frame_id, marker.header.stamp = frame_id, stamp
+    if not assessment.changes:
+        marker.action = Marker.DELETE
+        return marker
+    marker.type, marker.action = Marker.SPHERE_LIST, Marker.ADD
+    marker.pose.orientation.w = 1.0
+    marker.scale.x = marker.scale.y = marker.scale.z = 0.4
+    marker.color = CHANGED
+    marker.points = [Point(x=place.x, y=place.y) for place in assessment.changes]
+    return marker
+
+
+def _legend_marker(anchor: np.ndarray, frame_id: str, stamp: Time) -> Marker:
+    marker = Marker(ns=LEGEND_NAMESPACE, id=0, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD)
+    marker.header.frame_id, marker.header.stamp = frame_id, stamp
+    marker.pose.position.x, marker.pose.position.y = float(anchor[0]), float(anchor[1]) + 1.5
+    marker.pose.orientation.w = 1.0
+    marker.scale.z = 0.3
+    marker.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=0.9)
+    marker.text = LEGEND
+    return marker
+
+
+def _verdicts(snapshot: MonitorSnapshot, assessment: Assessment,
+              judged: MonitorSnapshot) -> np.ndarray:
+    """0 untested, 1 consistent, 2 misaligned per keyframe of `snapshot` (stamp order), from
+    the verdict on the (possibly older) snapshot `judged`."""
+    result = snapshot.result
+    if result is None:
+        return np.zeros(snapshot.keyframe_count, dtype=np.int8)
+    flagged = np.isin(snapshot.ids, judged.ids[assessment.flagged])
+    return np.where(flagged, 2, np.where(result.overlap_counts > 0, 1, 0)).astype(np.int8)
+
+
+_COLOURS = (UNTESTED, CONSISTENT, INCONSISTENT)
+
+
+class MarkerUpdates:
+    """The markers already published, to send only what changed (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self._keyframes: dict[int, tuple[bytes, Marker]] = {}
+        self._verdict: tuple[Marker, Marker] | None = None  # points, changed places
+        self._judged: Assessment | None = None
+        self._legend: Marker | None = None
+
+    def changed(self, snapshot: MonitorSnapshot, assessment: Assessment,
+                judged: MonitorSnapshot, points: Callable[[], np.ndarray], frame_id: str,
+                stamp: Time) -> MarkerArray:
+        """Markers that differ from the last call; `points` computes the misaligned end points
+        of `assessment` (the verdict on `judged`), called only when the verdict is new."""
+        markers = []
+        verdicts = _verdicts(snapshot, assessment, judged)
+        for key, pose, verdict in zip(snapshot.ids.tolist(), snapshot.poses, verdicts.tolist()):
+            identity = pose.tobytes() + bytes([verdict]) + frame_id.encode()
+            known = self._keyframes.get(key)
+            if known is None or known[0] != identity:
+                marker = _keyframe_marker(key, pose, _COLOURS[verdict], frame_id, stamp)
+                self._keyframes[key] = (identity, marker)
+                markers.append(marker)
+        if assessment is not self._judged:
+            self._judged = assessment
+            drawn = np.zeros((0, 2)) if assessment.consistent else points()
+            self._verdict = (_points_marker(drawn, frame_id, stamp),
+                             _changes_marker(assessment, frame_id, stamp))
+            markers.extend(self._verdict)
+        if self._legend is None and snapshot.keyframe_count:
+            self._legend = _legend_marker(snapshot.poses[0], frame_id, stamp)
+            markers.append(self._legend)
+        return MarkerArray(markers=markers)
+
+    def all(self) -> MarkerArray:
+        """Every marker published so far, for a subscriber that joined late."""
+        markers = [marker for _, marker in self._keyframes.values()]
+        markers += [*(self._verdict or ()), *([self._legend] if self._legend else [])]
+        return MarkerArray(markers=markers)
+
+    def clear(self, frame_id: str, stamp: Time) -> MarkerArray:
+        """DELETEALL (after a reset: the old session's markers go)."""
+        self._keyframes.clear()
+        self._verdict = self._judged = self._legend = None
+        marker = Marker(action=Marker.DELETEALL)
+        marker.header.frame_id, marker.header.stamp = frame_id, stamp
+        return MarkerArray(markers=[marker])

@@ -1,122 +1,88 @@
-"""The live map-consistency node: scans and the SLAM trajectory in; verdict, markers, diagnostics
-out.
+"""The live map-consistency node: scans and the SLAM poses in; verdict, markers, diagnostics out.
 
-Subscription callbacks only convert messages and queue them; one worker thread owns the
-ConsistencyMonitor, drains the queues (bursts of trajectories coalesce into the newest) and
-publishes. Services run in their own callback group, so a DCS retune never blocks monitoring.
-The contract (topics, QoS, parameters, diagnostics) is in docs/node.md.
+Callbacks only convert messages into core records (io/messages.py) and queue them: scans in
+their own callback group, the heavier poses and constraints in another, so decoding a long Path
+never delays a scan. One worker thread owns the feed (core/feed.py, the one shared with bag
+replay) and its monitor, applies the queued records (bursts of keyframe estimates coalesce into
+the newest; single poses are all kept), and publishes. Every scan the node cannot process is
+counted (DDS losses, a full queue, the monitor's full buffer). Services run in a third group,
+so a DCS retune never blocks monitoring. The contract is in docs/node.md.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
+import signal
 import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import InvalidParameterValueException
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
-from sensor_msgs.msg import LaserScan
-from std_msgs.msg import Bool, Float64, Float64MultiArray, String
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from map_consistency_ros.core.consistency import ConsistencyParameters, inconsistent_endpoints
+from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.explanation import (Assessment, ExplanationSettings,
+                                                  RegistrationCache, explain,
+                                                  misaligned_endpoints)
+from map_consistency_ros.core.reporting import assessment_report, plain
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
+from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
+from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
+                                                 unknown_names)
+from map_consistency_ros.core.posegraph import tuning_problem
+from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, UpdateSummary
-from map_consistency_ros.ros import conversions
+from map_consistency_ros.io import messages
+from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
-from map_consistency_ros.ros.markers import consistency_markers
+from map_consistency_ros.ros.markers import MarkerUpdates
+from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      history=HistoryPolicy.KEEP_LAST)
 RELIABLE = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
                       history=HistoryPolicy.KEEP_LAST)
-
-_TEST = ConsistencyParameters()
-_MONITOR = MonitorSettings()
-_TUNING = TuningSettings()
-
-# name -> (default, description, (low, high) or None); the type is the default's. Defaults of
-# the science come from its dataclasses. Everything is read-only (the monitor's caches depend
-# on it); rclpy enforces the ranges at start-up.
-PARAMETERS = {
-    # the original implementation's usable range
-    'max_range': (8.0, 'usable laser range (m); longer or invalid beams count as free space',
-                  (0.1, 1000.0)),
-    'laser_offset': (list(_MONITOR.laser_offset),
-                     'pose [x, y, yaw] of the laser in the keyframe frame', None),
-    'stamp_tolerance': (_MONITOR.stamp_tolerance,
-                        'largest |pose stamp - scan stamp| of a keyframe (s)', (0.0, 1.0)),
-    'max_buffered_scans': (_MONITOR.max_buffered_scans,
-                           'scans waiting for a pose; the oldest are dropped beyond',
-                           (1, 1_000_000)),
-    'scan_queue_depth': (50, 'depth of the scan subscription (sensor-data QoS)', (1, 10_000)),
-    'move_tolerance': (_MONITOR.move_tolerance, 'a keyframe moving further is measured again (m)',
-                       (0.0, 10.0)),
-    'move_angle_tolerance': (_MONITOR.move_angle_tolerance,
-                             'a keyframe turning further is measured again (rad)', (0.0, 3.14)),
-    'cell_size': (_MONITOR.cell_size, 'cell of the spatial index of scan extents (m)',
-                  (0.1, 1000.0)),
-    'alpha': (_TEST.alpha, 'pairwise test level', (1e-9, 0.5)),
-    'local_alpha': (_TEST.local_alpha, 'level of the local scale fit on the incremental solution',
-                    (1e-9, 0.5)),
-    'failure_probability': (_TEST.failure_probability,
-                            'probability that one pairwise test fails', (1e-9, 0.5)),
-    'binomial_alpha': (_TEST.binomial_alpha, 'level of the cascaded (binomial) test per scan',
-                       (1e-9, 0.5)),
-    'local_window': (_TEST.local_window, 'temporally adjacent scans that fit a local scale',
-                     (0, 1000)),
-    'min_points': (_TEST.min_points, 'pairs with fewer inconsistent points are not tested',
-                   (1, 100_000)),
-    'trim_largest': (_TEST.trim_largest, 'largest distances dropped per pair before its statistic',
-                     (0, 1000)),
-    'default_scale': (_TEST.default_scale, 'scale of a scan without local estimate (m)',
-                      (1e-6, 10.0)),
-    'min_scale': (_TEST.min_scale, 'floor on every local scale (m)', (0.0, 10.0)),
-    'flag_window': (_TEST.flag_window,
-                    'keep a flag only with another flagged scan this close (0: off)', (0, 1000)),
-    'phi_min': (_TUNING.phi_min, 'smallest DCS Phi of the retune search', (1e-12, 1e6)),
-    'phi_max': (_TUNING.phi_max, 'largest DCS Phi of the retune search', (1e-9, 1e9)),
-    'grid_steps': (_TUNING.grid_steps, 'grid points of the Phi search (even in sqrt(Phi))',
-                   (3, 10_000)),
-    'tuning_tolerance': (_TUNING.tolerance, 'the Phi search stops when its bracket is narrower',
-                         (1e-12, 1e3)),
-    'dcs_iterations': (_TUNING.iterations, 'solver iterations per DCS solve', (1, 10_000)),
-    'tuning_workers': (_TUNING.workers,
-                       'DCS solves at once during a retune (0: one per CPU, at most 4)', (0, 64)),
-    'frame_id': ('', 'frame of the markers; empty: the trajectory\'s frame, else "map"', None),
-    'stale_timeout': (5.0, 'diagnostics turn STALE after this long without input (s)',
-                      (0.1, 3600.0)),
-    'diagnostics_period': (1.0, 'period of /diagnostics (s)', (0.05, 60.0)),
-    'warning_period': (5.0, 'a bad-input warning per topic at most this often (s)',
-                       (0.0, 3600.0)),
-    'max_marker_pairs': (200, 'failed pairs whose points are drawn', (0, 100_000)),
-    'service_timeout': (60.0, 'longest wait of a service for the worker (s)', (0.1, 3600.0)),
-}
+SINGLE_POSES = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                          history=HistoryPolicy.KEEP_LAST)
+# Parameters every rclpy node has, and per-topic QoS overrides: not ours, not unknown.
+_FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+_SHUTDOWN_ANSWER_SECONDS = 0.2  # spinning after a stop request, for pending answers to go out
+_SHUTTING_DOWN = 'the node is shutting down'
 
 
-def _descriptor(description: str, bounds: tuple | None) -> ParameterDescriptor:
-    descriptor = ParameterDescriptor(description=description, read_only=True)
-    if bounds is not None and isinstance(bounds[0], int):
-        descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1])]
-    elif bounds is not None:
-        descriptor.floating_point_range = [FloatingPointRange(from_value=float(bounds[0]),
-                                                              to_value=float(bounds[1]))]
-    return descriptor
+def _descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    # Dynamic typing and no rclpy ranges: wrong types and values reach the one check the
+    # node and replay share (one line, exit 2), not an rclpy traceback; the description
+    # states the range.
+    return ParameterDescriptor(description=spec.help, read_only=True, dynamic_typing=True)
+
+
+def _ros_default(spec: ParameterSpec):
+    return list(spec.default) if spec.kind is tuple else spec.default
+
+
+class ShuttingDown(Exception):
+    """A service gave up waiting because the node is shutting down."""
 
 
 class MapConsistencyNode(Node):
@@ -124,45 +90,47 @@ class MapConsistencyNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('map_consistency', **kwargs)
-        self._declare_parameters()
-        value = self._value
-        if len(value('laser_offset')) != 3:
-            raise ValueError('laser_offset must have 3 values [x, y, yaw]')
-        self._monitor = ConsistencyMonitor(
-            ConsistencyParameters(
-                alpha=value('alpha'), local_alpha=value('local_alpha'),
-                failure_probability=value('failure_probability'),
-                binomial_alpha=value('binomial_alpha'), local_window=value('local_window'),
-                min_points=value('min_points'), trim_largest=value('trim_largest'),
-                default_scale=value('default_scale'), min_scale=value('min_scale'),
-                flag_window=value('flag_window')),
-            MonitorSettings(
-                laser_offset=tuple(float(v) for v in value('laser_offset')),
-                stamp_tolerance=value('stamp_tolerance'),
-                max_buffered_scans=value('max_buffered_scans'),
-                move_tolerance=value('move_tolerance'),
-                move_angle_tolerance=value('move_angle_tolerance'),
-                cell_size=value('cell_size')))
-        self._tuning = TuningSettings(
-            phi_min=value('phi_min'), phi_max=value('phi_max'), grid_steps=value('grid_steps'),
-            tolerance=value('tuning_tolerance'), iterations=value('dcs_iterations'),
-            workers=value('tuning_workers'), parameters=self._monitor.parameters)
+        values = self._declare_parameters()
+        for warning in unknown_names(self._override_names(), PARAMETER_NAMES):
+            self.get_logger().warning(warning)
+        self._settings: NodeSettings = settings_from_values(NodeSettings, values)
+        feed_settings = settings_from_values(FeedSettings, values)
+        self._feed = MonitorFeed(settings_from_values(ConsistencyParameters, values),
+                                 settings_from_values(MonitorSettings, values), feed_settings)
+        self._tuning = settings_from_values(TuningSettings, values,
+                                            parameters=self._feed.parameters)
+        self._explanation = settings_from_values(ExplanationSettings, values)
+        self._registrations = RegistrationCache()  # worker thread only
+        # the last verdict of both stages, the snapshot it judged, and when (time.monotonic)
+        self._verdict: tuple[Assessment, MonitorSnapshot] | None = None
+        self._explained_at = -math.inf
+        settings = self._settings
+        self._queue_limit = self._feed.monitor_settings.max_buffered_scans
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self._scans: deque = deque(maxlen=value('max_buffered_scans'))
-        self._path: tuple[np.ndarray, np.ndarray, str] | None = None
-        self._constraints: np.ndarray | None = None
+        # queued records with their arrival (time.monotonic), for the update latency
+        self._scans: deque[tuple[float, Scan]] = deque()
+        self._poses: deque[tuple[float, PoseSample]] = deque()
+        self._estimate: tuple[float, KeyframeEstimate] | None = None
+        self._constraints: tuple[float, Constraints] | None = None
         self._jobs: deque[tuple[Callable[[], object], Future]] = deque()
-        self._frame_id = value('frame_id') or 'map'
+        self._frame_id = settings.frame_id or 'map'
         self._last_input: float | None = None
         self._problems = 0
         self._last_problem = ('', -math.inf)
         self._warned: dict[str, float] = {}
-        self._latency: float | None = None
+        self._latency: float | None = None  # arrival of a change -> its verdict published
+        self._timing: dict[str, float] = {}  # seconds per stage of the last update
         self._phi: float | None = None
+        self._dds_lost = 0  # scans the middleware reported lost
+        self._queue_lost = 0  # scans dropped from the node's full queue
         self._retuning = threading.Lock()
-        self._snapshot = self._monitor.snapshot()  # replaced whole by the worker, read anywhere
+        self._calls = 0  # service calls being answered, for the shutdown to wait for
+        self._tuner: threading.Thread | None = None
+        self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
+        self._marker_updates = MarkerUpdates()  # worker thread only
+        self._marker_subscribers = 0
 
         self._markers = self.create_publisher(MarkerArray, '~/markers', RELIABLE)
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -171,38 +139,61 @@ class MapConsistencyNode(Node):
         self._tuned_phi = self.create_publisher(Float64, '~/tuned_phi', LATCHED)
         self._optimized = self.create_publisher(Path, '~/optimized_trajectory', LATCHED)
 
-        inputs = MutuallyExclusiveCallbackGroup()
-        scan_qos = QoSProfile(depth=value('scan_queue_depth'),
-                              reliability=qos_profile_sensor_data.reliability,
-                              durability=qos_profile_sensor_data.durability,
+        reliability = (ReliabilityPolicy.RELIABLE if settings.scan_reliability == 'reliable'
+                       else ReliabilityPolicy.BEST_EFFORT)
+        scan_qos = QoSProfile(depth=settings.scan_queue_depth, reliability=reliability,
+                              durability=DurabilityPolicy.VOLATILE,
                               history=HistoryPolicy.KEEP_LAST)
-        self.create_subscription(LaserScan, 'scan', self._on_scan, scan_qos,
-                                 callback_group=inputs)
-        self.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
-                                 callback_group=inputs)
-        self.create_subscription(Float64MultiArray, 'constraints', self._on_constraints,
-                                 RELIABLE, callback_group=inputs)
+        self.create_subscription(
+            message_class(messages.SCAN_TYPE), 'scan', self._on_scan, scan_qos,
+            callback_group=MutuallyExclusiveCallbackGroup(),
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_scans_lost))
+        poses = MutuallyExclusiveCallbackGroup()
+        pose_type = messages.POSE_SOURCE_TYPES[feed_settings.pose_source]
+        if feed_settings.single_poses:
+            self.create_subscription(message_class(pose_type), 'pose',
+                                     lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
+                                     callback_group=poses)
+        else:
+            self.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
+                                     callback_group=poses)
+        self.create_subscription(message_class(messages.CONSTRAINTS_TYPE), 'constraints',
+                                 self._on_constraints, RELIABLE, callback_group=poses)
         services = ReentrantCallbackGroup()
         self.create_service(Trigger, '~/check', self._on_check, callback_group=services)
         self.create_service(Trigger, '~/retune_dcs', self._on_retune, callback_group=services)
-        self.create_timer(value('diagnostics_period'), self._publish_diagnostics,
-                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, '~/reset', self._on_reset, callback_group=services)
+        # a steady timer: diagnostics go on (and turn STALE) when a simulated clock pauses
+        self.create_timer(settings.diagnostics_period, self._publish_diagnostics,
+                          callback_group=MutuallyExclusiveCallbackGroup(),
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._worker = threading.Thread(target=self._work, name='map_consistency_worker',
                                         daemon=True)
         self._worker.start()
 
     # -- parameters --------------------------------------------------------------------------
 
-    def _declare_parameters(self) -> None:
-        for name, (default, description, bounds) in PARAMETERS.items():
-            if bounds is not None and isinstance(bounds[0], float):
-                default = float(default)  # a double parameter even where the default is whole
-            self.declare_parameter(name, default, _descriptor(description, bounds))
+    def _declare_parameters(self) -> dict:
+        values = {}
+        for _, group in NODE_GROUPS:
+            for spec in specs(group):
+                value = self.declare_parameter(spec.name, _ros_default(spec),
+                                               _descriptor(spec)).value
+                # arrays come back as array.array or list: our check takes lists
+                sequence = not isinstance(value, (str, bool, int, float)) and value is not None
+                values[spec.name] = list(value) if sequence else value
+        return values
 
-    def _value(self, name: str):
-        return self.get_parameter(name).value
+    def _override_names(self) -> list[str]:
+        # rclpy keeps every --params-file / -p value for this node here, declared or not
+        return [name for name in self._parameter_overrides
+                if name not in _FOREIGN_PARAMETERS and not name.startswith('qos_overrides.')]
 
     # -- input callbacks (cheap: convert and queue) -----------------------------------------
+
+    def _now(self) -> float:
+        """Seconds on the node's clock (simulated time with use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _input_problem(self, topic: str, message: str) -> None:
         """Count a bad message, keep it for diagnostics, warn at most once per period."""
@@ -210,44 +201,60 @@ class MapConsistencyNode(Node):
         with self._lock:
             self._problems += 1
             self._last_problem = (f'{topic}: {message}', now)
-        if now - self._warned.get(topic, -math.inf) >= self._value('warning_period'):
+        if now - self._warned.get(topic, -math.inf) >= self._settings.warning_period:
             self._warned[topic] = now
             self.get_logger().warning(f'ignored bad input on {topic}: {message}')
 
-    def _touch(self) -> None:
+    def _convert(self, topic: str, msgtype: str, msg):
         with self._lock:
-            self._last_input = time.monotonic()
-
-    def _on_scan(self, msg: LaserScan) -> None:
-        self._touch()
+            self._last_input = self._now()
         try:
-            scan = conversions.scan_to_numpy(msg, self._value('max_range'))
+            return messages.to_record(msgtype, msg, self._feed.settings.max_range)
         except ValueError as error:
-            self._input_problem('scan', str(error))
+            self._input_problem(topic, str(error))
+            return None
+
+    def _on_scan(self, msg) -> None:
+        record = self._convert('scan', messages.SCAN_TYPE, msg)
+        if record is None:
             return
-        self._scans.append(scan)
+        with self._lock:
+            if len(self._scans) >= self._queue_limit:
+                self._scans.popleft()
+                self._queue_lost += 1
+            self._scans.append((time.monotonic(), record))
         self._wake.set()
+
+    def _on_scans_lost(self, info) -> None:
+        with self._lock:
+            self._dds_lost += info.total_count_change
 
     def _on_trajectory(self, msg: Path) -> None:
-        self._touch()
-        try:
-            stamps, poses = conversions.path_to_numpy(msg)
-        except ValueError as error:
-            self._input_problem('trajectory', str(error))
-            return
-        with self._lock:
-            self._path = (stamps, poses, msg.header.frame_id)
-        self._wake.set()
+        record = self._convert('trajectory', messages.PATH_TYPE, msg)
+        if record is not None:
+            with self._lock:
+                # the full estimate: a newer one replaces it
+                self._estimate = (time.monotonic(), record)
+            self._wake.set()
 
-    def _on_constraints(self, msg: Float64MultiArray) -> None:
-        try:
-            rows = conversions.constraints_to_numpy(msg)
-        except ValueError as error:
-            self._input_problem('constraints', str(error))
-            return
-        with self._lock:
-            self._constraints = rows
-        self._wake.set()
+    def _on_pose(self, msgtype: str, msg) -> None:
+        record = self._convert('pose', msgtype, msg)
+        if record is not None:
+            with self._lock:
+                if len(self._poses) >= self._queue_limit:
+                    self._poses.popleft()
+                    self._problems += 1
+                    self._last_problem = ('pose: queue full, the oldest pose dropped',
+                                          time.monotonic())
+                self._poses.append((time.monotonic(), record))
+            self._wake.set()
+
+    def _on_constraints(self, msg) -> None:
+        record = self._convert('constraints', messages.CONSTRAINTS_TYPE, msg)
+        if record is not None:
+            with self._lock:
+                self._constraints = (time.monotonic(), record)
+            self._wake.set()
 
     # -- worker ------------------------------------------------------------------------------
 
@@ -260,50 +267,64 @@ class MapConsistencyNode(Node):
             except Exception as error:  # noqa: BLE001 - the worker must outlive any bug
                 self.get_logger().error(f'monitor update failed: {error!r}')
 
-    def _work_once(self) -> None:
-        monitor = self._monitor
-        while self._scans:
-            stamp, ranges, model = self._scans.popleft()
-            try:
-                monitor.add_scan(stamp, ranges, model)
-            except ValueError as error:
-                self._input_problem('scan', str(error))
+    def _take(self) -> list:
         with self._lock:
-            path, self._path = self._path, None
-            constraints, self._constraints = self._constraints, None
-        if constraints is not None:
-            try:
-                monitor.set_constraints(constraints)
-            except ValueError as error:
-                self._input_problem('constraints', str(error))
-        summary = None
-        if path is not None:
-            stamps, poses, frame_id = path
-            self._frame_id = self._value('frame_id') or frame_id or 'map'
-            summary = self._update(lambda: monitor.update_trajectory(stamps, poses))
-        elif monitor.pending:
-            summary = self._update(monitor.refresh)
+            records = list(self._scans) + list(self._poses)
+            self._scans.clear()
+            self._poses.clear()
+            for latest in (self._constraints, self._estimate):
+                if latest is not None:
+                    records.append(latest)
+            self._estimate = self._constraints = None
+        return records
+
+    def _work_once(self) -> None:
+        changed_at = None  # arrival of the newest record that changed the map
+        monitor_seconds = 0.0
+        for arrival, record in self._take():
+            summary, reset = self._apply(record)
+            if summary is not None or reset:
+                changed_at = arrival
+                monitor_seconds += 0.0 if summary is None else summary.elapsed
         while self._jobs:
             job, future = self._jobs.popleft()
             try:
                 future.set_result(job())
             except Exception as error:  # noqa: BLE001 - handed to the waiting service
                 future.set_exception(error)
-        self._snapshot = monitor.snapshot()
-        if summary is not None and summary.changed:
-            self._publish_verdict()
+        self._greet_marker_subscribers()
+        start = time.perf_counter()
+        self._snapshot = self._feed.monitor.snapshot()
+        if changed_at is not None:
+            self._timing = {'monitor_s': monitor_seconds,
+                            'snapshot_s': time.perf_counter() - start}
+            self._publish_verdict(changed_at)
+        elif self._verdict_behind():
+            # the input paused: explain the last update now
+            self._publish_verdict(time.monotonic(), explain_now=True)
 
-    def _update(self, step: Callable[[], UpdateSummary]) -> UpdateSummary | None:
-        try:
-            summary = step()
-        except ValueError as error:
-            self._input_problem('trajectory', str(error))
-            return None
-        for warning in summary.warnings:
-            self._input_problem('trajectory', warning)
-        if summary.changed:
-            self._latency = summary.elapsed
-        return summary
+    def _apply(self, record):
+        """Apply one record through the feed: (the update or None, whether it reset)."""
+        if isinstance(record, KeyframeEstimate):
+            self._frame_id = self._settings.frame_id or record.frame_id or 'map'
+        applied = self._feed.apply(record)
+        topic = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
+                 Constraints: 'constraints'}[type(record)]
+        for warning in applied.warnings:
+            self._input_problem(topic, warning)
+        if applied.reset:
+            self._after_reset(applied.reset)
+        return applied.summary, bool(applied.reset)
+
+    def _after_reset(self, reason: str) -> None:
+        self.get_logger().warning(f'monitor reset: {reason}')
+        self._verdict = None
+        self._registrations = RegistrationCache()
+        self._markers.publish(self._marker_updates.clear(self._frame_id,
+                                                         self.get_clock().now().to_msg()))
+        with self._lock:
+            self._dds_lost = self._queue_lost = 0
+        self._latency = None
 
     def _submit(self, job: Callable[[], object]) -> Future:
         """Run `job` on the worker thread (the monitor's owner)."""
@@ -312,33 +333,96 @@ class MapConsistencyNode(Node):
         self._wake.set()
         return future
 
+    def _wait(self, future: Future, timeout: float):
+        """The future's result; ShuttingDown when the node stops first, TimeoutError."""
+        deadline = time.monotonic() + timeout
+        while not self._stop.is_set():
+            try:
+                return future.result(timeout=min(0.05, max(deadline - time.monotonic(), 0.0)))
+            except FutureTimeout:
+                if time.monotonic() >= deadline:
+                    raise TimeoutError from None
+        raise ShuttingDown
+
     # -- outputs -----------------------------------------------------------------------------
 
-    def _publish_verdict(self) -> None:
-        """Markers, ~/consistent, ~/report and /diagnostics (worker thread only)."""
+    def _verdict_behind(self) -> bool:
+        """Whether the last verdict judged an older snapshot than the current one."""
+        return (self._snapshot.result is not None
+                and (self._verdict is None or self._verdict[1].result is not self._snapshot.result))
+
+    def _explain(self, explain_now: bool) -> tuple[Assessment, MonitorSnapshot]:
+        """Both stages' verdict on the current snapshot, or the last one while keyframes stream
+        in faster than `explanation_period` (worker thread only)."""
         snapshot = self._snapshot
-        result = snapshot.result
-        if result is None:
+        due = time.monotonic() - self._explained_at >= self._settings.explanation_period
+        if self._verdict is not None and not (explain_now or due):
+            return self._verdict
+        start = time.perf_counter()
+        assessment = explain(snapshot.scans(), snapshot.result, self._explanation,
+                             cache=self._registrations)
+        self._timing['explanation_s'] = time.perf_counter() - start
+        self._explained_at = time.monotonic()
+        self._verdict = (assessment, snapshot)
+        return self._verdict
+
+    def _publish_verdict(self, changed_at: float, explain_now: bool = False) -> None:
+        """Markers, ~/consistent, ~/report and /diagnostics (worker thread only) for a change
+        whose input arrived at `changed_at` (time.monotonic)."""
+        snapshot = self._snapshot
+        if snapshot.result is None:
             return
-        limit = self._value('max_marker_pairs')
-        points = (np.zeros((0, 2)) if result.consistent else
-                  inconsistent_endpoints(snapshot.scans(), result, limit))
+        assessment, judged = self._explain(explain_now)
+        start = time.perf_counter()
+        limit = self._settings.max_marker_pairs
         stamp = self.get_clock().now().to_msg()
-        self._markers.publish(consistency_markers(snapshot, points, self._frame_id, stamp))
-        self._consistent.publish(Bool(data=result.consistent))
-        report = dict(result.summary(), update_latency_s=self._latency, phi=self._phi,
-                      inconsistent_stamps=snapshot.stamps[result.inconsistent].tolist())
-        self._report.publish(String(data=json.dumps(report)))
+        markers = self._marker_updates.changed(
+            snapshot, assessment, judged,
+            lambda: misaligned_endpoints(judged.scans(), assessment, limit),
+            self._frame_id, stamp)
+        built = time.perf_counter()
+        if markers.markers:
+            self._markers.publish(markers)
+        self._consistent.publish(Bool(data=assessment.consistent))
+        self._timing.update(markers_s=built - start, publish_s=time.perf_counter() - built)
+        self._latency = time.monotonic() - changed_at
+        self._report.publish(String(data=json.dumps(self._report_dict())))
         self._publish_diagnostics()
+
+    def _greet_marker_subscribers(self) -> None:
+        """The whole marker array once more when a subscriber joined (RViz started late):
+        updates carry only what changed (worker thread only)."""
+        count = self._markers.get_subscription_count()
+        if count > self._marker_subscribers:
+            self._markers.publish(self._marker_updates.all())
+        self._marker_subscribers = count
+
+    def _report_dict(self) -> dict:
+        """The machine-readable report of ~/report (the one place it is built): the verdict's
+        report of the CLI, scans named by their stamps, and the node's own figures."""
+        snapshot = self._snapshot
+        assessment, judged = self._verdict
+        content = assessment_report(assessment, judged.stamps)
+        content.pop('scans')  # per-scan arrays: the CLI's JSON has room for them, a topic not
+        content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
+                            paper_consistent=assessment.result.consistent,
+                            update_latency_s=self._latency, phi=self._phi, timing=self._timing,
+                            lost_scans=self._health().lost_scans,
+                            keyframes=snapshot.keyframe_count,
+                            judged_keyframes=judged.keyframe_count))
+        return plain(content)
 
     def _health(self) -> MonitorHealth:
         snapshot = self._snapshot
         result = snapshot.result
-        now = time.monotonic()
+        assessment = None if self._verdict is None or result is None else self._verdict[0]
+        feed, now = self._feed, self._now()
         with self._lock:
             last_input, problems, (problem, when) = (self._last_input, self._problems,
                                                      self._last_problem)
-        stale_timeout = self._value('stale_timeout')
+            lost = self._dds_lost + self._queue_lost
+            queued = len(self._scans)
+        stale_timeout = self._settings.stale_timeout
         return MonitorHealth(
             keyframes=snapshot.keyframe_count, buffered_scans=snapshot.buffered_scans,
             overlapping_pairs=0 if result is None else result.overlapping_pair_count,
@@ -346,11 +430,18 @@ class MapConsistencyNode(Node):
             failed_pairs=0 if result is None else result.failed_pair_count,
             inconsistent_scans=0 if result is None else int(result.inconsistent.sum()),
             unmatched_poses=snapshot.unmatched_poses,
-            consistent=None if result is None else result.consistent,
+            consistent=None if assessment is None else assessment.consistent,
+            verdict='' if assessment is None else assessment.summary_line(),
+            misaligned_scans=0 if assessment is None else int(assessment.flagged.sum()),
+            misaligned_regions=0 if assessment is None else len(assessment.misalignments),
+            changed_places=0 if assessment is None else len(assessment.changes),
             update_latency=self._latency, phi=self._phi, input_problems=problems,
-            recent_problem=problem if now - when <= stale_timeout else '',
-            seconds_since_input=None if last_input is None else now - last_input,
-            stale_timeout=stale_timeout)
+            recent_problem=problem if time.monotonic() - when <= stale_timeout else '',
+            seconds_since_input=None if last_input is None else max(now - last_input, 0.0),
+            stale_timeout=stale_timeout, queued_scans=queued,
+            lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
+            poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
+            last_reset=feed.last_reset)
 
     def _publish_diagnostics(self) -> None:
         status = map_status(self._health(), self.get_fully_qualified_name())
@@ -360,28 +451,53 @@ class MapConsistencyNode(Node):
 
     # -- services ----------------------------------------------------------------------------
 
+    def _answer(self, response: Trigger.Response, work: Callable[[], tuple[bool, str]]
+                ) -> Trigger.Response:
+        with self._lock:
+            self._calls += 1
+        try:
+            response.success, response.message = work()
+        except TimeoutError:
+            response.success, response.message = False, 'timed out waiting for the monitor'
+        except ShuttingDown:
+            response.success, response.message = False, _SHUTTING_DOWN
+        finally:
+            with self._lock:
+                self._calls -= 1
+        return response
+
     def _check(self) -> tuple[bool, str]:
         """Measure every pair again and publish (worker thread)."""
-        summary = self._monitor.recompute()
-        self._snapshot = self._monitor.snapshot()
+        summary = self._feed.monitor.recompute()
+        self._snapshot = self._feed.monitor.snapshot()
         result = self._snapshot.result
         if result is None:
             return False, 'no keyframes yet: no trajectory pose matches a scan'
-        self._latency = summary.elapsed
-        self._publish_verdict()
-        return True, (f"{'consistent' if result.consistent else 'INCONSISTENT'}: "
+        self._timing = {'monitor_s': summary.elapsed}
+        self._publish_verdict(time.monotonic() - summary.elapsed, explain_now=True)
+        assessment = self._verdict[0]
+        return True, (f'{assessment.summary_line()}; the paper\'s test: '
                       f'{int(result.inconsistent.sum())} of {result.scan_count} scans fail, '
                       f'{result.failed_pair_count} of {result.tested_pair_count} tested pairs '
                       f'fail; {summary.measured_pairs} pairs measured in {summary.elapsed:.2f} s')
 
     def _on_check(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """~/check: recompute everything now and answer with the verdict."""
-        try:
-            response.success, response.message = self._submit(self._check).result(
-                timeout=self._value('service_timeout'))
-        except TimeoutError:
-            response.success, response.message = False, 'timed out waiting for the monitor'
-        return response
+        return self._answer(response, lambda: self._wait(self._submit(self._check),
+                                                         self._settings.service_timeout))
+
+    def _reset(self) -> tuple[bool, str]:
+        keyframes = self._feed.monitor.keyframe_count
+        self._feed.reset('~/reset service')
+        self._after_reset('~/reset service')
+        self._snapshot = self._feed.monitor.snapshot()
+        self._publish_diagnostics()
+        return True, f'reset: {keyframes} keyframes forgotten'
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/reset: forget every scan, keyframe and constraint (a new SLAM session)."""
+        return self._answer(response, lambda: self._wait(self._submit(self._reset),
+                                                         self._settings.service_timeout))
 
     def _on_retune(self, request: Trigger.Request,
                    response: Trigger.Response) -> Trigger.Response:
@@ -390,63 +506,122 @@ class MapConsistencyNode(Node):
             response.success, response.message = False, 'a retune is already running'
             return response
         try:
-            response.success, response.message = self._retune()
-        except TimeoutError:
-            response.success, response.message = False, 'timed out waiting for the monitor'
+            return self._answer(response, self._retune)
         except ValueError as error:
             response.success, response.message = False, f'retune failed: {error}'
+            return response
         finally:
             self._retuning.release()
-        return response
 
     def _retune(self) -> tuple[bool, str]:
-        graph, snapshot = self._submit(
-            lambda: (self._monitor.pose_graph(), self._monitor.snapshot())).result(
-                timeout=self._value('service_timeout'))
+        graph, snapshot = self._wait(self._submit(
+            lambda: (self._feed.monitor.pose_graph(), self._feed.monitor.snapshot())),
+            self._settings.service_timeout)
         if graph is None:
             return False, ('no pose graph to tune: it needs two keyframes and constraint rows '
                            'on the constraints topic whose stamps match keyframes')
+        problem = tuning_problem(graph)
+        if problem:
+            return False, f'cannot tune this graph honestly: {problem}'
         start = time.monotonic()
-        result = tune_dcs(graph, snapshot.ranges, snapshot.model, snapshot.laser_offset,
-                          self._tuning)
+        future: Future = Future()
+
+        def tune() -> None:
+            try:
+                future.set_result(tune_dcs(graph, snapshot.ranges, snapshot.model,
+                                           snapshot.laser_offset, self._tuning))
+            except Exception as error:  # noqa: BLE001 - handed to the waiting service
+                future.set_exception(error)
+
+        # a thread of its own: on shutdown the service answers at once and the search is
+        # abandoned (it cannot be interrupted)
+        self._tuner = threading.Thread(target=tune, name='map_consistency_retune', daemon=True)
+        self._tuner.start()
+        result = self._wait(future, math.inf)
         elapsed = time.monotonic() - start
         self._phi = result.phi
         self._tuned_phi.publish(Float64(data=result.phi))
-        self._optimized.publish(conversions.numpy_to_path(snapshot.stamps, result.poses,
-                                                          self._frame_id))
-        verdict = result.consistency
+        self._optimized.publish(messages.path_message(message_class, snapshot.stamps,
+                                                      result.poses, self._frame_id))
+        tuned = ScanSet.from_ranges(snapshot.ranges,
+                                    sensor_poses(result.poses, snapshot.laser_offset),
+                                    snapshot.model)
+        verdict = explain(tuned, result.consistency, self._explanation)
         return True, (f'Phi* = {result.phi:.6g} (M = {result.average_inconsistency:.4g} m): '
-                      f"optimized map {'consistent' if result.consistent else 'INCONSISTENT'}, "
-                      f'{int(verdict.inconsistent.sum())} of {verdict.scan_count} scans fail; '
-                      f'{graph.edge_count} edges, {result.profile_phi.size} Phi values in '
-                      f'{elapsed:.1f} s')
+                      f'optimized map {verdict.summary_line()}; {graph.edge_count} edges, '
+                      f'{result.profile_phi.size} Phi values in {elapsed:.1f} s')
 
-    def destroy_node(self) -> None:
+    # -- shutdown ----------------------------------------------------------------------------
+
+    def begin_shutdown(self) -> None:
+        """Stop the worker; waiting services answer with a failure."""
         self._stop.set()
         self._wake.set()
-        self._worker.join(timeout=5.0)
+
+    @property
+    def answering(self) -> bool:
+        """Whether service calls are still being answered."""
+        with self._lock:
+            return self._calls > 0
+
+    @property
+    def busy(self) -> bool:
+        """Whether a retune or an update is still running (neither can be interrupted)."""
+        return (self._tuner is not None and self._tuner.is_alive()) or self._worker.is_alive()
+
+    def destroy_node(self) -> None:
+        self.begin_shutdown()
+        self._worker.join(timeout=_SHUTDOWN_ANSWER_SECONDS)
         super().destroy_node()
 
 
+def _spin_until(executor: MultiThreadedExecutor, stop: threading.Event) -> None:
+    while not stop.is_set() and executor.context.ok():
+        executor.spin_once(timeout_sec=0.05)
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point of `map_consistency_node` and `python -m map_consistency_ros.ros.node`."""
-    rclpy.init(args=args)
+    """Entry point of `map_consistency_node` and `python -m map_consistency_ros.ros.node`.
+
+    SIGINT / SIGTERM stop the node within a second in every state: pending service calls are
+    answered with a failure, a running retune is abandoned.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    for number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(number, lambda *_: stop.set())
     node = None
+    abandoned = False
     try:
         try:
             node = MapConsistencyNode()
-        except (InvalidParameterValueException, ValueError) as error:
+        except (ParameterException, ValueError) as error:
             print(f'map_consistency: bad parameter: {error}', file=sys.stderr)
             return 2
-        executor = MultiThreadedExecutor(num_threads=4)
+        executor = MultiThreadedExecutor(num_threads=6)
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        _spin_until(executor, stop)
+        node.begin_shutdown()
+        # waiting calls fail at once; spin while their answers go out
+        deadline = time.monotonic() + _SHUTDOWN_ANSWER_SECONDS
+        answered = False
+        while time.monotonic() < deadline and (node.answering or not answered):
+            answered = not node.answering
+            executor.spin_once(timeout_sec=0.02)
+        executor.shutdown(timeout_sec=0.1)
+    except ExternalShutdownException:
         pass
     finally:
         if node is not None:
             node.destroy_node()
+            abandoned = node.busy
         rclpy.try_shutdown()
+    if abandoned:
+        # a retune's solver threads or a long update cannot be interrupted, and the
+        # interpreter would wait for them
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     return 0
 
 

@@ -32,7 +32,9 @@ def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
 
 
 def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
-    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    # One and a half laps: the displaced second half revisits the first (the second stage
+    # needs independent registrations of the displaced stretch against what it revisits).
+    t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
     poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
     path, _, _ = room_log(poses)
     # Rewrite the logged poses of the second half as if SLAM had put them 0.4 m off.
@@ -40,16 +42,24 @@ def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
     shifted = []
     for index, line in enumerate(lines):
         tokens = line.split()
-        if index >= 20:
+        if index >= 30:
             for slot in (182, 185):
                 tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
         shifted.append(' '.join(tokens))
     path.write_text('\n'.join(shifted) + '\n')
-    explain = tmp_path / 'pairs.png'
-    code = main(['check', str(path), '--quiet', '--explain', str(explain)])
+    explain, report = tmp_path / 'pairs.png', tmp_path / 'r.json'
+    code = main(['check', str(path), '--quiet', '--explain', str(explain), '--report',
+                 str(report)])
     out = capsys.readouterr().out
     assert code == 1
-    assert 'INCONSISTENT' in out and 'flagged scan indices' in out
+    assert 'INCONSISTENT: 1 misaligned region (largest 0.' in out
+    assert 'misaligned region     scans ' in out and 'dx -0.39 m' in out
+    (region,) = json.loads(report.read_text())['misalignments']
+    assert min(region['scans']) >= 30 and max(region['reference_scans']) < 30
+    # The correction moves the displaced half back.
+    assert region['dx_m'] == pytest.approx(-0.4, abs=0.01)
+    assert region['dy_m'] == pytest.approx(0.0, abs=0.01)
+    assert region['displacement_m'] == pytest.approx(0.4, abs=0.01)
     assert explain.read_bytes()[:4] == b'\x89PNG'
 
 
@@ -81,7 +91,7 @@ def test_missing_file_and_bad_option_exit_2(tmp_path, room_log, capsys):
     assert 'absent.log: no such file' in capsys.readouterr().err
     path, _, _ = room_log()
     assert main(['check', str(path), '--alpha', '1.5']) == 2
-    assert 'alpha must be in (0, 1)' in capsys.readouterr().err
+    assert 'alpha: 1.5 is outside' in capsys.readouterr().err
 
 
 def test_console_script_prints_no_traceback(tmp_path):

@@ -7,7 +7,8 @@ import pytest
 
 from map_consistency_ros.cli.main import main
 from map_consistency_ros.io import carmen
-from map_consistency_ros.io.bags import BagReader, Constraints, Scan, Trajectory
+from map_consistency_ros.core.records import Constraints, KeyframeEstimate, Scan
+from map_consistency_ros.io.bags import BagReader
 
 SCANS = 40
 
@@ -54,13 +55,13 @@ def test_scans(converted):
 
 def test_trajectory_grows_by_one_keyframe(converted):
     log, records = converted
-    paths = [record for record in records if isinstance(record, Trajectory)]
+    paths = [record for record in records if isinstance(record, KeyframeEstimate)]
     assert [path.stamps.size for path in paths] == list(range(1, SCANS + 1))
     np.testing.assert_allclose(paths[-1].stamps, log.timestamps)
     np.testing.assert_allclose(paths[-1].poses, log.laser_poses, atol=1e-12)
     # Each scan comes before the path that names it.
     kinds = [type(record).__name__ for record in records if not isinstance(record, Constraints)]
-    assert kinds == ['Scan', 'Trajectory'] * SCANS
+    assert kinds == ['Scan', 'KeyframeEstimate'] * SCANS
 
 
 def test_constraints_are_the_odometry_steps(converted):
@@ -185,7 +186,7 @@ def graph_bag(intel_log, tmp_path_factory):
 def test_graph_scans_and_trajectory(graph_bag):
     _, log, records = graph_bag
     scans = [record for record in records if isinstance(record, Scan)]
-    paths = [record for record in records if isinstance(record, Trajectory)]
+    paths = [record for record in records if isinstance(record, KeyframeEstimate)]
     np.testing.assert_array_equal(np.array([scan.ranges for scan in scans]),
                                   log.ranges.astype(np.float32))
     assert scans[0].model.angle_increment == pytest.approx(math.pi / 179, rel=1e-7)

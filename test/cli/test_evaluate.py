@@ -12,7 +12,8 @@ from map_consistency_ros.evaluation.suite import SuiteParameters, build_suite
 
 SMALL = ['evaluate', '--datasets', 'orebro', '--part-size', '60', '--alphas', '0.01', '1e-9',
          '--binomial-alphas', '0.01', '--local-alphas', '0.05',
-         '--flag-windows', '0', '4', '--quantiles', '0', '0.05', '--workers', '1', '--quiet']
+         '--flag-windows', '0', '4', '--quantiles', '0', '0.05', '--two-stage-alphas', '0.01',
+         '--tolerances', '0.05', '0.1', '--seams', '1', '--workers', '1', '--quiet']
 
 
 def test_evaluate_writes_the_write_up(shared_data, tmp_path, capsys):
@@ -23,7 +24,8 @@ def test_evaluate_writes_the_write_up(shared_data, tmp_path, capsys):
     assert '| orebro | 237 |' in printed
     text = doc.read_text()
     for heading in ('## Result', '## Suite', '## Consistent maps the test flags',
-                    '## Inconsistent maps the test misses', '## Pareto frontiers', '## Runtime'):
+                    '## Inconsistent maps the test misses', '## Pareto frontiers', '## Runtime',
+                    '## Whole logs at default settings', '| two-stage verdict (defaults) |'):
         assert heading in text
     assert '](figures/evaluation_pareto.png)' in text
     assert (tmp_path / 'docs' / 'figures' / 'evaluation_pareto.png').stat().st_size > 10000
@@ -33,6 +35,12 @@ def test_evaluate_writes_the_write_up(shared_data, tmp_path, capsys):
     assert {row[0] for row in results['baseline']['rows']} == {0.0, 0.05}
     assert len(results['maps']) == 20
     assert results['runtimes'][0]['scan_count'] == 237
+    assert [row[:2] for row in results['two_stage']['rows']] == [[0.01, 0.05], [0.01, 0.1]]
+    # orebro whole, and one copy per displacement size (no graph is built for it)
+    whole = results['whole_logs']
+    assert [item['name'] for item in whole][:2] == ['orebro/corrected', 'orebro/rotation 1 deg #0']
+    assert len(whole) == 6 and whole[0]['displacement'] < 1e-9
+    assert all(item['displacement'] > 0.0 for item in whole[1:])
 
 
 @pytest.mark.parametrize('extra, message', [

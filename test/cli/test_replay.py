@@ -166,7 +166,7 @@ def test_bad_bags_exit_2(shared_data, tmp_path, capsys, round_trip):
     assert main(['replay', bag, '--pose-topic', '/scan', '--quiet']) == 2
     assert 'topic /scan carries sensor_msgs/msg/LaserScan' in _one_line_error(capsys)
     assert main(['replay', bag, '--max-range', '0', '--quiet']) == 2
-    assert '--max-range must be positive' in _one_line_error(capsys)
+    assert 'max_range: 0.0 is outside [0.1, 1000]' in _one_line_error(capsys)
     assert main(['replay', str(tmp_path / 'missing'), '--quiet']) == 2
     assert 'no such bag' in _one_line_error(capsys)
     malformed = shared_data / 'ros1_native' / 'ccny_laser_scan_matcher_demo.bag'
@@ -236,10 +236,12 @@ class Listener:
 def test_publish(round_trip, ros_domain):
     """--publish plays the bag onto ROS 2 topics; a subscriber gets every message intact."""
     from nav_msgs.msg import Path
+    from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import LaserScan
     from std_msgs.msg import Float64MultiArray
     listener = Listener([('/scan', LaserScan, 1000, False), ('/trajectory', Path, 1000, False),
-                         ('/constraints', Float64MultiArray, 10, False)])
+                         ('/constraints', Float64MultiArray, 10, False),
+                         ('/clock', Clock, 1000, False)])
     try:
         assert main(['replay', str(round_trip[0] / 'bag'), '--publish', '--rate', '50',
                      '--quiet']) == 0
@@ -255,7 +257,13 @@ def test_publish(round_trip, ros_domain):
     assert [len(path.poses) for path in paths] == list(range(1, ROUND_TRIP_SCANS + 1))
     with BagReader([round_trip[0] / 'bag']) as bag:
         first = next(record for _, record in bag.records())
+        start, end = bag.start_time, bag.start_time + bag.duration
     np.testing.assert_array_equal(np.asarray(scans[0].ranges, dtype=np.float64), first.ranges)
+    # /clock follows the bag's log time, for nodes with use_sim_time
+    clock = [message.clock.sec + message.clock.nanosec * 1e-9
+             for _, message in listener.received['/clock']]
+    assert clock == sorted(clock) and len(clock) >= ROUND_TRIP_SCANS
+    assert start - 1e-6 <= clock[0] and clock[-1] <= end + 1e-6
 
 
 def record_raw(path, received, types):
@@ -275,12 +283,12 @@ def record_raw(path, received, types):
 def wrong_loop_closure(round_trip):
     """The round-trip run, then a last trajectory that bends its final third by 0.15 rad."""
     from map_consistency_ros.core import se2
-    from map_consistency_ros.io.bags import Scan, Trajectory
+    from map_consistency_ros.core.records import KeyframeEstimate, Scan
     folder = round_trip[0]
     with BagReader([folder / 'bag']) as bag:
         records = [record for _, record in bag.records()]
     scans = [record for record in records if isinstance(record, Scan)]
-    final = [record for record in records if isinstance(record, Trajectory)][-1]
+    final = [record for record in records if isinstance(record, KeyframeEstimate)][-1]
     pivot = 2 * ROUND_TRIP_SCANS // 3
     bent = final.poses.copy()
     bend = np.array([0.0, 0.0, 0.15])
@@ -368,14 +376,14 @@ def test_bundled_demo_bag(shared_data):
     from importlib import resources
 
     from map_consistency_ros.io import carmen
-    from map_consistency_ros.io.bags import Scan, Trajectory
+    from map_consistency_ros.core.records import KeyframeEstimate, Scan
     demo = resources.files('map_consistency_ros') / 'data' / 'intel_demo.mcap'
     log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     with BagReader([demo]) as bag:
         assert bag.message_count('/scan') == bag.message_count('/trajectory') == 290
         records = [record for _, record in bag.records()]
     scans = [record for record in records if isinstance(record, Scan)]
-    last_path = [record for record in records if isinstance(record, Trajectory)][-1]
+    last_path = [record for record in records if isinstance(record, KeyframeEstimate)][-1]
     np.testing.assert_array_equal(np.array([scan.ranges for scan in scans]),
                                   log.ranges[:290].astype(np.float32))
     np.testing.assert_allclose(last_path.poses[:, :2], log.laser_poses[:290, :2], atol=1e-12)
@@ -383,3 +391,63 @@ def test_bundled_demo_bag(shared_data):
     turn = np.angle(np.exp(1j * (last_path.poses[:, 2] - log.laser_poses[:290, 2])))
     np.testing.assert_allclose(turn, 0.0, atol=1e-12)
     np.testing.assert_allclose(last_path.stamps, log.timestamps[:290])
+
+
+def _changed(spec):
+    """A valid value of a parameter other than its default."""
+    if spec.choices:
+        return spec.choices[(spec.choices.index(spec.default) + 1) % len(spec.choices)]
+    if spec.kind is bool:
+        return not spec.default
+    if spec.kind is str:
+        return 'odom'
+    if spec.kind is tuple:
+        return [0.01, 0.0, 0.0]
+    low, high = spec.bounds
+    value = spec.default * 1.1 if spec.default else low + (high - low) * 1e-3
+    if spec.kind is int:
+        value = spec.default + 1
+    assert low <= value <= high and value != spec.default, spec.name
+    return value
+
+
+def test_every_node_parameter_goes_through_params_file(round_trip, tmp_path, capsys):
+    """The node's parameter file drives replay: every parameter is checked and reported."""
+    import yaml
+
+    from map_consistency_ros.core.parameters import specs
+    from map_consistency_ros.ros.settings import NODE_GROUPS
+    values = {spec.name: _changed(spec) for _, group in NODE_GROUPS for spec in specs(group)}
+    values['pose_source'] = 'path'  # the bag's pose topic is a Path
+    params = tmp_path / 'params.yaml'
+    params.write_text(yaml.safe_dump({'/map_consistency': {'ros__parameters': values}}))
+    code = main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
+                 '--report', str(tmp_path / 'r.json')])
+    assert code in (0, 1) and 'unknown parameter' not in capsys.readouterr().err
+    report = json.loads((tmp_path / 'r.json').read_text())
+    used = report['node_parameters']
+    assert used.keys() == values.keys()
+    for name, value in values.items():
+        assert used[name] == pytest.approx(value), name
+    test_parameters = report['parameters']
+    for name in test_parameters:
+        assert test_parameters[name] == pytest.approx(values[name]), name
+    # an option given on the command line wins over the file
+    main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
+          '--alpha', '0.02', '--report', str(tmp_path / 'r2.json')])
+    assert json.loads((tmp_path / 'r2.json').read_text())['parameters']['alpha'] == 0.02
+
+
+def test_bad_parameter_files(round_trip, tmp_path, capsys):
+    bag = str(round_trip[0] / 'bag')
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    alpha: "0.01"\n')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) == 2
+    assert "alpha: expected a float, got a string '0.01'" in _one_line_error(capsys)
+    params.write_text('/**:\n  ros__parameters:\n    max_range: 8\n    trim: 5\n')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) in (0, 1)
+    error = capsys.readouterr().err
+    assert "unknown parameter 'trim' ignored; did you mean trim_largest?" in error
+    params.write_text('just text')
+    assert main(['replay', bag, '--quiet', '--params-file', str(params)]) == 2
+    assert 'not a ROS 2 parameter file' in _one_line_error(capsys)

@@ -190,6 +190,20 @@ def test_scan_buffer_is_bounded_and_drops_the_oldest(intel):
     summary = monitor.update_trajectory(stamps[:12], poses[:12])
     assert summary.new_keyframes == 5 and summary.unmatched_poses == 7
     np.testing.assert_array_equal(monitor.snapshot().stamps, stamps[7:12])
+    # the seven dropped scans are counted, and the poses that name them say so
+    snapshot = monitor.snapshot()
+    assert snapshot.dropped_scans == 7 and snapshot.poses_without_scan == 7
+
+
+def test_a_pose_whose_scan_never_came_is_reported_once_newer_scans_arrive(intel):
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor()
+    for index in (0, 1, 3):  # scan 2 is lost on the way
+        monitor.add_scan(stamps[index], ranges[index], model)
+    monitor.update_trajectory(stamps[:4], poses[:4])
+    assert monitor.snapshot().poses_without_scan == 1
+    monitor.update_trajectory(stamps[:5], poses[:5])  # pose 4 waits: its scan may still come
+    assert monitor.snapshot().poses_without_scan == 1 and monitor.snapshot().unmatched_poses == 2
 
 
 def test_bad_scans_raise_and_keep_the_state(intel):

@@ -72,3 +72,43 @@ def test_odometry_chain_follows_the_first_of_parallel_sequential_edges():
     graph = PoseGraph(poses=np.zeros((2, 3)), edge_from=[0, 0, 1], edge_to=[1, 1, 0],
                       measurements=[first, second, second], information=[np.eye(3)] * 3)
     np.testing.assert_allclose(graph.odometry_chain()[1], first, atol=1e-12)
+
+
+def test_graphs_that_cannot_be_tuned_honestly_are_named():
+    from map_consistency_ros.core.posegraph import tuning_problem
+    assert tuning_problem(_graph()) is None
+    sparse = _graph(edge_from=[0, 2], edge_to=[1, 3], measurements=np.zeros((2, 3)),
+                    information=np.repeat(np.eye(3)[None], 2, axis=0))
+    assert '2 constraints for 4 keyframes' in tuning_problem(sparse)
+    split = _graph(edge_from=[0, 1, 0], edge_to=[1, 0, 2], measurements=np.zeros((3, 3)),
+                   information=np.repeat(np.eye(3)[None], 3, axis=0),
+                   poses=np.zeros((4, 3)))
+    assert 'disconnected parts' in tuning_problem(split)
+    chain = _graph(edge_from=[0, 1, 2], edge_to=[1, 2, 3], measurements=np.zeros((3, 3)),
+                   information=np.repeat(np.eye(3)[None], 3, axis=0))
+    assert 'no loop closure' in tuning_problem(chain)
+    huge = _graph(information=np.repeat(1e300 * np.eye(3)[None], 4, axis=0))
+    assert 'overflow the solver' in tuning_problem(huge)
+
+
+def test_constraint_rows_round_trip_and_refusals():
+    from map_consistency_ros.core.posegraph import (check_constraint_rows, constraint_rows,
+                                                    split_constraint_rows)
+    information = np.array([[[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 9.0]]] * 2)
+    measurements = np.array([[1.0, 2.0, 0.3], [0.0, -1.0, 3.0]])
+    rows = constraint_rows(np.array([1.0, 2.0]), np.array([2.0, 5.0]), measurements,
+                           information)
+    assert rows[0].tolist() == [1.0, 2.0, 1.0, 2.0, 0.3, 4.0, 1.0, 0.5, 3.0, 0.2, 9.0]
+    stamp_from, stamp_to, back_measurements, back_information = split_constraint_rows(
+        check_constraint_rows(rows))
+    np.testing.assert_array_equal(back_information, information)
+    np.testing.assert_array_equal(back_measurements, measurements)
+    assert stamp_to.tolist() == [2.0, 5.0] and stamp_from.tolist() == [1.0, 2.0]
+    for change, message in (((0, 1), 'to itself'), ((0, 5), 'not positive definite'),
+                            ((1, 7), r'beyond 1e\+12')):
+        bad = rows.copy()
+        bad[change] = {1: 1.0, 5: -4.0, 7: 1e300}[change[1]]
+        with pytest.raises(ValueError, match=message):
+            check_constraint_rows(bad)
+    with pytest.raises(ValueError, match=r'shape \(E, 11\)'):
+        check_constraint_rows(rows[:, :10])

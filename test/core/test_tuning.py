@@ -110,7 +110,7 @@ def test_grids_are_even_in_sqrt_phi_or_in_phi():
 @pytest.mark.parametrize('settings', [dict(phi_min=0.0), dict(phi_min=2.0, phi_max=1.0),
                                       dict(grid_steps=2), dict(tolerance=0.0),
                                       dict(iterations=0), dict(workers=-1),
-                                      dict(flat_tolerance=-0.1), dict(move_tolerance=-1.0),
+                                      dict(flat_tolerance=-0.1), dict(reuse_tolerance=-1.0),
                                       dict(relative_tolerance=-1e-9), dict(initial_damping=0.0)])
 def test_invalid_settings_are_refused(settings):
     with pytest.raises(ValueError):

@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.feed import MonitorFeed
+from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.core.scan_geometry import SensorModel
-from map_consistency_ros.io import bags
-from map_consistency_ros.io.bags import (BagReader, BagTopics, BagWriter, Constraints,
-                                         OdometryKeyframes, PoseSample, Scan, Trajectory)
+from map_consistency_ros.io import bags, messages
+from map_consistency_ros.io.bags import BagReader, BagTopics, BagWriter
 from map_consistency_ros.io.errors import InputError
 
 MODEL = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 179, max_range=81.83)
@@ -44,12 +46,12 @@ def test_rosbag2_round_trip(tmp_path, recorded, storage, compress):
     stamps, ranges, poses, rows = recorded
     path = write_bag(tmp_path / 'bag', recorded, storage, compress)
     with BagReader([path]) as bag:
-        assert bag.pose_topic == '/trajectory' and bag.pose_type == bags.PATH_TYPE
+        assert bag.pose_topic == '/trajectory' and bag.pose_type == messages.PATH_TYPE
         assert bag.has_constraints and not bag.is_ros1
         assert bag.message_count('/scan') == 10
         records = [record for _, record in bag.records()]
     scans = [record for record in records if isinstance(record, Scan)]
-    paths = [record for record in records if isinstance(record, Trajectory)]
+    paths = [record for record in records if isinstance(record, KeyframeEstimate)]
     edges = [record for record in records if isinstance(record, Constraints)]
     assert len(scans) == len(paths) == 10 and len(edges) == 1
     for index, scan in enumerate(scans):
@@ -71,7 +73,7 @@ def test_yaw_agrees_with_scipy():
     rotations = Rotation.from_euler('ZYX', angles * [1.0, 0.1, 0.1])
     x, y, z, w = rotations.as_quat().T
     # Any positive scale of a quaternion is the same rotation.
-    yaw = bags.yaw_from_quaternion(3 * x, 3 * y, 3 * z, 3 * w)
+    yaw = se2.yaw_from_quaternion(3 * x, 3 * y, 3 * z, 3 * w)
     np.testing.assert_allclose(yaw, rotations.as_euler('ZYX')[:, 0], atol=1e-9)
 
 
@@ -79,7 +81,7 @@ def test_intel_ros1_bag(shared_data):
     with BagReader([shared_data / 'intel' / 'intel.orig.bag']) as bag:
         assert bag.is_ros1
         # No /trajectory: the only pose topic is picked.
-        assert bag.pose_topic == '/odom' and bag.pose_type == bags.ODOMETRY_TYPE
+        assert bag.pose_topic == '/odom' and bag.pose_type == messages.ODOMETRY_TYPE
         assert not bag.has_constraints
         assert bag.message_count('/scan') == 13631
         assert bag.duration == pytest.approx(2691.3, abs=0.1)
@@ -97,46 +99,6 @@ def test_intel_ros1_bag(shared_data):
     assert scan.model.angle_min == pytest.approx(-math.pi / 2, rel=1e-7)
     assert scan.model.angle_increment == pytest.approx(math.pi / 179, rel=1e-6)
     assert (scan.model.range_min, scan.model.max_range) == pytest.approx((0.1, 80.0))
-
-
-def _sample(stamp, pose):
-    return PoseSample(stamp=stamp, pose=np.asarray(pose, dtype=float), frame_id='odom',
-                      child_frame_id='base_link')
-
-
-def _scan(stamp):
-    return Scan(stamp=stamp, ranges=np.ones(3, dtype=np.float32), model=MODEL, frame_id='laser')
-
-
-def test_odometry_keyframes_interpolate_and_select():
-    keyframes = OdometryKeyframes(min_distance=1.0, min_angle=0.5)
-    keyframes.add_scan(_scan(0.5))  # before any pose: cannot be placed
-    assert keyframes.add_pose(_sample(1.0, [1.0, 2.0, math.pi / 2])) == []
-    assert keyframes.dropped == 1
-    for stamp in (1.5, 2.0, 2.5, 3.5):
-        keyframes.add_scan(_scan(stamp))
-    # From (1, 2, pi/2) the robot moves 2 m forward and turns 0.4 rad by t = 3.
-    placed = keyframes.add_pose(_sample(3.0, [1.0, 4.0, math.pi / 2 + 0.4]))
-    # t = 1.5: a quarter of the step, (0.5 m, 0.1 rad) in the start frame -> first keyframe.
-    # t = 2.0: 0.5 m and 0.1 rad further: below both thresholds. t = 2.5: 1 m further.
-    # t = 3.5 waits for a later pose.
-    assert [scan.stamp for scan in placed] == [1.5, 2.5]
-    np.testing.assert_allclose(keyframes.poses, [[1.0, 2.5, math.pi / 2 + 0.1],
-                                                 [1.0, 3.5, math.pi / 2 + 0.3]], atol=1e-12)
-    assert keyframes.stamps == [1.5, 2.5]
-    assert [scan.stamp for scan in keyframes.add_pose(_sample(4.0, [1.0, 6.0, 2.0]))] == [3.5]
-
-
-def test_odometry_keyframes_turning_in_place_and_exact_stamps():
-    keyframes = OdometryKeyframes(min_distance=1.0, min_angle=0.5)
-    keyframes.add_pose(_sample(0.0, [1.0, 1.0, 3.0]))
-    keyframes.add_scan(_scan(0.0))
-    keyframes.add_scan(_scan(1.0))
-    placed = keyframes.add_pose(_sample(1.0, [1.0, 1.0, -2.7]))  # wraps through pi: +0.583 rad
-    assert [scan.stamp for scan in placed] == [0.0, 1.0]
-    np.testing.assert_allclose(keyframes.poses[1], [1.0, 1.0, -2.7])
-    with pytest.raises(ValueError):
-        OdometryKeyframes(min_distance=-1.0, min_angle=0.1)
 
 
 def test_missing_bag(tmp_path):
@@ -198,7 +160,7 @@ def test_no_pose_topic(tmp_path):
     from rosbags.typesys import Stores, get_typestore
     path = tmp_path / 'scans_only'
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        writer.add_connection('/scan', bags.SCAN_TYPE,
+        writer.add_connection('/scan', messages.SCAN_TYPE,
                               typestore=get_typestore(Stores.ROS2_JAZZY))
     with pytest.raises(InputError, match='no /trajectory topic and 0 other pose topics'):
         with BagReader([path]):
@@ -212,32 +174,36 @@ def test_unusable_messages_are_reported_not_fatal(tmp_path):
     types = store.types
     header = types['std_msgs/msg/Header'](
         stamp=types['builtin_interfaces/msg/Time'](sec=1, nanosec=0), frame_id='laser')
-    scan = types[bags.SCAN_TYPE](  # angle_max says 3 beams, the scan has 10
+    scan = types[messages.SCAN_TYPE](  # angle_max says 3 beams, the scan has 10
         header=header, angle_min=-1.0, angle_max=1.0, angle_increment=1.0, time_increment=0.0,
         scan_time=0.0, range_min=0.0, range_max=10.0, ranges=np.ones(10, dtype=np.float32),
         intensities=np.zeros(0, dtype=np.float32))
     pose = types['geometry_msgs/msg/Pose'](
         position=types['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=0.0),
         orientation=types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=0.0))
-    path_message = types[bags.PATH_TYPE](
-        header=header, poses=[types[bags.POSE_STAMPED_TYPE](header=header, pose=pose)])
-    rows = types[bags.CONSTRAINTS_TYPE](
+    path_message = types[messages.PATH_TYPE](
+        header=header, poses=[types[messages.POSE_STAMPED_TYPE](header=header, pose=pose)])
+    rows = types[messages.CONSTRAINTS_TYPE](
         layout=types['std_msgs/msg/MultiArrayLayout'](dim=[], data_offset=0),
         data=np.arange(12.0))
     path = tmp_path / 'bad_content'
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         for time, (topic, msgtype, message) in enumerate([
-                ('/scan', bags.SCAN_TYPE, scan), ('/trajectory', bags.PATH_TYPE, path_message),
-                ('/constraints', bags.CONSTRAINTS_TYPE, rows)]):
+                ('/scan', messages.SCAN_TYPE, scan),
+                ('/trajectory', messages.PATH_TYPE, path_message),
+                ('/constraints', messages.CONSTRAINTS_TYPE, rows)]):
             connection = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(connection, time + 1, store.serialize_cdr(message, msgtype))
     with BagReader([path]) as bag:
         records = [record for _, record in bag.records()]
-    assert all(isinstance(record, bags.BadMessage) for record in records)
-    assert [(record.topic, record.index) for record in records] == [
-        ('/scan', 1), ('/trajectory', 1), ('/constraints', 1)]
+    bad = [records[0], records[2]]
+    assert all(isinstance(record, bags.BadMessage) for record in bad)
+    assert [(record.topic, record.index) for record in bad] == [('/scan', 1), ('/constraints', 1)]
     assert 'imply 3.0 beams but it has 10 ranges' in records[0].reason
-    assert 'zero quaternion' in records[1].reason
+    # a zero quaternion has no heading: the pose is passed on without one, the feed skips it
+    assert isinstance(records[1], KeyframeEstimate) and np.isnan(records[1].poses[0, 2])
+    applied = MonitorFeed().apply(records[1])
+    assert applied.summary is None and 'unusable quaternion' in applied.warnings[0]
     assert 'not a multiple of 11' in records[2].reason
 
 
@@ -253,23 +219,23 @@ def test_scan_conversion_caps_usable_range():
     message = _Message(header=_Message(stamp=stamp), angle_min=-1.0, angle_max=1.0,
                        angle_increment=0.5, range_min=-1.0, range_max=30.0,
                        ranges=np.arange(1.0, 6.0, dtype=np.float32))
-    seconds, ranges, model = bags.scan_to_numpy(message, max_range=8.0)
+    seconds, ranges, model = messages.scan_to_numpy(message, max_range=8.0)
     assert seconds == 12.5
     np.testing.assert_array_equal(ranges, [1, 2, 3, 4, 5])
     assert (model.max_range, model.range_min) == (8.0, 0.0)
-    assert bags.scan_to_numpy(message)[2].max_range == 30.0
+    assert messages.scan_to_numpy(message)[2].max_range == 30.0
 
 
 def test_constraints_layout_and_offset():
     dims = [_Message(label='edges', size=2, stride=22), _Message(label='fields', size=11,
                                                                 stride=11)]
     data = np.arange(25.0)
-    rows = bags.constraints_to_numpy(_Message(layout=_Message(dim=dims, data_offset=3),
+    rows = messages.constraints_to_numpy(_Message(layout=_Message(dim=dims, data_offset=3),
                                               data=data))
     np.testing.assert_array_equal(rows, data[3:25].reshape(2, 11))
     with pytest.raises(ValueError, match='layout says 3 x 11 values from offset 3'):
         dims[0].size = 3
-        bags.constraints_to_numpy(_Message(layout=_Message(dim=dims, data_offset=3), data=data))
+        messages.constraints_to_numpy(_Message(layout=_Message(dim=dims, data_offset=3), data=data))
 
 
 def test_writer_refuses_bad_settings(tmp_path):
@@ -289,15 +255,15 @@ def test_raw_messages_are_cdr(tmp_path, recorded, shared_data):
         raw = list(bag.raw_messages(['/scan']))
     assert len(raw) == 10
     from rosbags.typesys import Stores, get_typestore
-    message = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(raw[0][3], bags.SCAN_TYPE)
+    message = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(raw[0][3], messages.SCAN_TYPE)
     np.testing.assert_array_equal(message.ranges, recorded[1][0])
     with BagReader([shared_data / 'intel' / 'intel.orig.bag']) as bag:
         with pytest.raises(InputError, match='ROS 1 serialized'):
             bag.raw_messages(['/scan'])
 
 
-@pytest.mark.parametrize('msgtype', [bags.POSE_STAMPED_TYPE, bags.POSE_COVARIANCE_TYPE,
-                                     bags.ODOMETRY_TYPE])
+@pytest.mark.parametrize('msgtype', [messages.POSE_STAMPED_TYPE, messages.POSE_COVARIANCE_TYPE,
+                                     messages.ODOMETRY_TYPE])
 def test_single_pose_sources(tmp_path, msgtype):
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -317,14 +283,14 @@ def test_single_pose_sources(tmp_path, msgtype):
             angular=types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)),
         covariance=np.zeros(36))
     message = {
-        bags.POSE_STAMPED_TYPE: lambda: types[msgtype](header=header, pose=pose),
-        bags.POSE_COVARIANCE_TYPE: lambda: types[msgtype](header=header, pose=covariance),
-        bags.ODOMETRY_TYPE: lambda: types[msgtype](header=header, child_frame_id='base_link',
+        messages.POSE_STAMPED_TYPE: lambda: types[msgtype](header=header, pose=pose),
+        messages.POSE_COVARIANCE_TYPE: lambda: types[msgtype](header=header, pose=covariance),
+        messages.ODOMETRY_TYPE: lambda: types[msgtype](header=header, child_frame_id='base_link',
                                                    pose=covariance, twist=twist),
     }[msgtype]()
     path = tmp_path / 'poses'
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        writer.add_connection('/scan', bags.SCAN_TYPE, typestore=store)
+        writer.add_connection('/scan', messages.SCAN_TYPE, typestore=store)
         connection = writer.add_connection('/localizer', msgtype, typestore=store)
         writer.write(connection, 1, store.serialize_cdr(message, msgtype))
     with BagReader([path]) as bag:
@@ -332,5 +298,5 @@ def test_single_pose_sources(tmp_path, msgtype):
         [(_, sample)] = list(bag.records())
     assert isinstance(sample, PoseSample)
     assert sample.stamp == 5.25 and sample.frame_id == 'map'
-    assert sample.child_frame_id == ('base_link' if msgtype == bags.ODOMETRY_TYPE else '')
+    assert sample.child_frame_id == ('base_link' if msgtype == messages.ODOMETRY_TYPE else '')
     np.testing.assert_allclose(sample.pose, [1.5, -2.0, 0.7], atol=1e-12)

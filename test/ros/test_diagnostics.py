@@ -11,19 +11,29 @@ from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, statu
 HEALTHY = MonitorHealth(keyframes=120, buffered_scans=3, overlapping_pairs=900, tested_pairs=700,
                         failed_pairs=4, inconsistent_scans=0, unmatched_poses=1, consistent=True,
                         update_latency=0.0042, phi=None, input_problems=0, recent_problem='',
-                        seconds_since_input=0.3, stale_timeout=5.0)
+                        seconds_since_input=0.3, stale_timeout=5.0,
+                        verdict='CONSISTENT: no misalignment above 0.10 m; 2 changed places '
+                                '(people, moved objects)', changed_places=2)
+BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
+          'verdict': 'INCONSISTENT: 1 misaligned region (largest 0.31 m, 1.5 deg); 2 changed '
+                     'places (people, moved objects)'}
 
 
 @pytest.mark.parametrize('changes, level, words', [
-    ({}, DiagnosticStatus.OK, 'map consistent (120 scans)'),
+    ({}, DiagnosticStatus.OK, 'map CONSISTENT: no misalignment above 0.10 m; 2 changed places '
+                              '(people, moved objects) (120 scans)'),
     ({'recent_problem': 'scan: empty'}, DiagnosticStatus.WARN, 'bad input: scan: empty'),
     ({'consistent': None, 'keyframes': 0}, DiagnosticStatus.WARN, 'no keyframe yet'),
-    ({'consistent': False, 'inconsistent_scans': 7}, DiagnosticStatus.ERROR,
-     'map inconsistent: 7 of 120 scans fail'),
-    ({'consistent': False, 'seconds_since_input': 9.0}, DiagnosticStatus.STALE,
+    (BROKEN, DiagnosticStatus.ERROR, 'map INCONSISTENT: 1 misaligned region (largest 0.31 m'),
+    ({**BROKEN, 'seconds_since_input': 9.0}, DiagnosticStatus.STALE,
      'no input for 9.0 s'),
     ({'seconds_since_input': None, 'consistent': None}, DiagnosticStatus.STALE,
      'no scan or trajectory received yet'),
+    ({'lost_scans': 12}, DiagnosticStatus.WARN, 'objects) (120 scans); 12 scans lost'),
+    ({'poses_without_scan': 3}, DiagnosticStatus.WARN,
+     '3 keyframe poses name scans never received'),
+    ({**BROKEN, 'lost_scans': 2}, DiagnosticStatus.ERROR, 'objects); 2 scans lost'),
+    ({'gap_scans': 40}, DiagnosticStatus.OK, 'map CONSISTENT: '),  # an estimate
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
@@ -37,9 +47,14 @@ def test_key_values_carry_the_figures():
     assert status.hardware_id == '/mc' and status.level == DiagnosticStatus.OK
     assert values['scans'] == '120' and values['overlapping pairs'] == '900'
     assert values['failed pairs'] == '4' and values['inconsistent scans'] == '0'
+    assert values['misaligned regions'] == '0' and values['changed places'] == '2'
     assert values['update latency (ms)'] == '4.2'
     assert values['phi'] == '0.125000'
     assert values['input problems'] == '2' and values['last input problem'] == 'none'
     unknown = {kv.key: kv.value for kv in map_status(
         dataclasses.replace(HEALTHY, update_latency=None), '/mc').values}
     assert unknown['update latency (ms)'] == 'n/a' and unknown['phi'] == 'n/a'
+    reset = {kv.key: kv.value for kv in map_status(dataclasses.replace(
+        HEALTHY, resets=1, last_reset='~/reset service', queued_scans=4), '/mc').values}
+    assert reset['resets'] == '1' and reset['last reset'] == '~/reset service'
+    assert reset['queued scans'] == '4' and reset['lost scans'] == '0'

@@ -17,7 +17,6 @@ from pathlib import Path as FilePath
 import numpy as np
 import pytest
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Path
 from rclpy.context import Context
@@ -31,12 +30,14 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.explanation import explain
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
-from map_consistency_ros.ros import conversions
+from map_consistency_ros.io import messages
+from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import STATUS_NAME
 from map_consistency_ros.ros.markers import KEYFRAME_NAMESPACE, POINTS_NAMESPACE
-from map_consistency_ros.ros.node import PARAMETERS
+from map_consistency_ros.ros.settings import parameter_file
 
 REPO = FilePath(__file__).resolve().parents[2]
 SCANS = 80  # the first 80 Intel scans form a consistent map at the logged poses
@@ -84,6 +85,7 @@ class Probe:
                                       self.optimized.append, LATCHED)
         self.check = self.node.create_client(Trigger, node_ns + 'check')
         self.retune = self.node.create_client(Trigger, node_ns + 'retune_dcs')
+        self.reset = self.node.create_client(Trigger, node_ns + 'reset')
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         self.diagnostics.extend(s for s in msg.status if s.name == STATUS_NAME)
@@ -170,17 +172,31 @@ def probe(node_process):
 
 def _publish_scans(probe: Probe, log, model, indices) -> None:
     for index in indices:
-        probe.scan.publish(conversions.numpy_to_scan(log.timestamps[index], log.ranges[index],
-                                                     model))
+        probe.scan.publish(messages.scan_message(message_class, log.timestamps[index],
+                                                 log.ranges[index], model))
         time.sleep(0.004)  # a paced stream, as a laser driver publishes
 
 
 def _publish_path(probe: Probe, stamps, poses) -> None:
-    probe.trajectory.publish(conversions.numpy_to_path(stamps, poses, 'map'))
+    probe.trajectory.publish(messages.path_message(message_class, stamps, poses, 'map'))
 
 
-def _keyframe_markers(array: MarkerArray) -> list[Marker]:
-    return [m for m in array.markers if m.ns == KEYFRAME_NAMESPACE]
+def _marker_state(arrays: list[MarkerArray]) -> dict[tuple[str, int], Marker]:
+    """What RViz shows after the arrays received so far (updates carry only changes)."""
+    shown: dict[tuple[str, int], Marker] = {}
+    for array in list(arrays):
+        for marker in array.markers:
+            if marker.action == Marker.DELETEALL:
+                shown.clear()
+            elif marker.action == Marker.DELETE:
+                shown.pop((marker.ns, marker.id), None)
+            else:
+                shown[(marker.ns, marker.id)] = marker
+    return shown
+
+
+def _keyframe_markers(arrays: list[MarkerArray]) -> list[Marker]:
+    return [m for (ns, _), m in _marker_state(arrays).items() if ns == KEYFRAME_NAMESPACE]
 
 
 def _wrong_loop_closure(poses: np.ndarray, start: int, amount: float = 1.0) -> np.ndarray:
@@ -192,12 +208,9 @@ def _wrong_loop_closure(poses: np.ndarray, start: int, amount: float = 1.0) -> n
     return moved
 
 
-def test_config_file_holds_every_parameter_at_its_default():
-    config = yaml.safe_load((REPO / 'config' / 'map_consistency.yaml').read_text())
-    values = config['/**']['ros__parameters']
-    assert values.keys() == PARAMETERS.keys()
-    for name, (default, _, _) in PARAMETERS.items():
-        assert values[name] == default, name
+def test_config_file_is_generated_from_the_settings():
+    # regenerate with: python -m map_consistency_ros.ros.settings > config/map_consistency.yaml
+    assert (REPO / 'config' / 'map_consistency.yaml').read_text() == parameter_file()
 
 
 def test_a_parameter_out_of_range_ends_the_node_with_one_line(ros_env):
@@ -238,9 +251,8 @@ def test_consistent_map_from_late_and_early_scans(probe, intel):
     assert values['inconsistent scans'] == '0'
     assert values['overlapping pairs'] == str(oracle.overlapping_pair_count)
     assert values['tested pairs'] == str(oracle.tested_pair_count)
-    markers = _wait(lambda: probe.markers and len(_keyframe_markers(probe.markers[-1])) == SCANS
-                    and probe.markers[-1], what='a marker per keyframe')
-    keyframes = _keyframe_markers(markers)
+    keyframes = _wait(lambda: len(k := _keyframe_markers(probe.markers)) == SCANS and k,
+                      what='a marker per keyframe')
     assert sorted(m.id for m in keyframes) == list(range(SCANS))
     assert all(m.color.g > m.color.r for m in keyframes if m.id < SCANS)
 
@@ -248,18 +260,21 @@ def test_consistent_map_from_late_and_early_scans(probe, intel):
 def test_bad_input_warns_without_losing_state(probe, intel):
     log, model = intel
     problems = int(probe.status_value('input problems'))
-    bad_angles = conversions.numpy_to_scan(1.0, log.ranges[0], model)
+    late = log.timestamps[SCANS] + 10.0  # after the map: no stamp jump, no reset
+    bad_angles = messages.scan_message(message_class, late + 1.0, log.ranges[0], model)
     bad_angles.angle_increment = float('nan')
     probe.scan.publish(bad_angles)
-    short = conversions.numpy_to_scan(2.0, log.ranges[0], model)
+    short = messages.scan_message(message_class, late + 2.0, log.ranges[0], model)
     short.ranges = short.ranges[:90]  # angle fields say 180 beams
     probe.scan.publish(short)
-    probe.scan.publish(conversions.numpy_to_scan(3.0, np.zeros(0), model))
-    other_model = conversions.numpy_to_scan(4.0, log.ranges[0, :90], model)  # 90 beams
+    probe.scan.publish(messages.scan_message(message_class, late + 3.0, np.zeros(0), model))
+    # 90 beams
+    other_model = messages.scan_message(message_class, late + 4.0, log.ranges[0, :90], model)
     probe.scan.publish(other_model)
-    nan_scan = conversions.numpy_to_scan(5.0, np.full(log.ranges.shape[1], np.nan), model)
+    nan_scan = messages.scan_message(message_class, late + 5.0,
+                                     np.full(log.ranges.shape[1], np.nan), model)
     probe.scan.publish(nan_scan)  # valid: every beam is free space
-    broken = conversions.numpy_to_path(log.timestamps[:2], log.laser_poses[:2], 'map')
+    broken = messages.path_message(message_class, log.timestamps[:2], log.laser_poses[:2], 'map')
     broken.poses[1].pose.orientation.w = 0.0
     broken.poses[1].pose.orientation.z = 0.0
     probe.trajectory.publish(broken)
@@ -278,37 +293,58 @@ def node_alive(probe: Probe) -> bool:
     return probe.check.wait_for_service(timeout_sec=TIMEOUT)
 
 
+def test_absurd_poses_are_skipped_and_counted(probe, intel):
+    log, _ = intel
+    problems = int(probe.status_value('input problems'))
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    absurd = messages.path_message(message_class, stamps, poses, 'map')
+    absurd.poses[3].pose.orientation.z = float('inf')  # (0, 0, inf, 1): no heading
+    absurd.poses[4].pose.position.x = 1e300
+    probe.trajectory.publish(absurd)
+    _wait(lambda: int(probe.status_value('input problems')) >= problems + 2,
+          what='two skipped poses counted')
+    assert probe.status_value('scans') == str(SCANS)
+    assert probe.status_value('inconsistent scans') == '0'  # the two kept their last pose
+
+
 def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     log, model = intel
     stamps = log.timestamps[:SCANS]
     poses = _wrong_loop_closure(log.laser_poses[:SCANS], 50)
-    oracle = check_consistency(
-        ScanSet.from_ranges(log.ranges[:SCANS], poses, model),
-        reference_scans=ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS], model))
+    placed = ScanSet.from_ranges(log.ranges[:SCANS], poses, model)
+    oracle = explain(placed, check_consistency(
+        placed,
+        reference_scans=ScanSet.from_ranges(log.ranges[:SCANS], log.laser_poses[:SCANS], model)))
     assert not oracle.consistent
     # a burst, as an optimizer iterating: only the last estimate counts
     for amount in np.linspace(0.1, 0.9, 9):
         _publish_path(probe, stamps, _wrong_loop_closure(log.laser_poses[:SCANS], 50, amount))
     _publish_path(probe, stamps, poses)
-    expected_red = np.flatnonzero(oracle.inconsistent).tolist()
+    expected_red = np.flatnonzero(oracle.flagged).tolist()
 
     def red_keyframes():
-        latest = probe.markers[-1] if probe.markers else None
-        if latest is None or not any(m.ns == POINTS_NAMESPACE and m.action == Marker.ADD
-                                     for m in latest.markers):
+        shown = _marker_state(probe.markers)
+        if (POINTS_NAMESPACE, 0) not in shown:
             return None
-        return sorted(m.id for m in _keyframe_markers(latest) if m.color.r > m.color.g)
+        return sorted(m.id for m in _keyframe_markers(probe.markers) if m.color.r > m.color.g)
 
     _wait(lambda: red_keyframes() == expected_red, what='red markers of the final estimate')
-    _wait(lambda: probe.status_value('inconsistent scans') == str(len(expected_red)),
+    _wait(lambda: probe.status_value('misaligned scans') == str(len(expected_red)),
           what='the final count in the diagnostics')
     status = probe.latest_status()
     assert status.level == DiagnosticStatus.ERROR
-    assert status.message.startswith('map inconsistent')
+    assert status.message.startswith('map INCONSISTENT: 1 misaligned region')
+    assert probe.status_value('inconsistent scans') == str(int(oracle.result.inconsistent.sum()))
     assert probe.consistent[-1] is False
     report = json.loads(probe.reports[-1])
-    assert report['consistent'] is False
-    assert report['inconsistent_stamps'] == pytest.approx(stamps[oracle.inconsistent].tolist())
+    assert report['consistent'] is False and report['paper_consistent'] is False
+    assert report['summary_line'] == oracle.summary_line()
+    assert report['misaligned_scans'] == pytest.approx(stamps[oracle.flagged].tolist())
+    (region,) = report['misalignments']
+    assert set(region) >= {'scans', 'reference_scans', 'dx_m', 'dy_m', 'dtheta_deg',
+                           'displacement_m'}
+    assert min(region['scans']) >= stamps[50] > max(region['reference_scans'])
+    assert report['changes'] and set(report['changes'][0]) >= {'scans', 'x', 'y', 'points'}
     assert len(probe.optimized) == 0
 
 
@@ -330,10 +366,32 @@ def test_a_late_subscriber_gets_the_latched_verdict(probe):
         probe.node.destroy_subscription(subscription)
 
 
+def test_a_late_marker_subscriber_gets_every_marker(probe):
+    late: list[MarkerArray] = []
+    subscription = probe.node.create_subscription(
+        MarkerArray, '/map_consistency/markers', late.append, 10)
+    try:
+        _wait(lambda: len(_keyframe_markers(late)) == SCANS, what='the whole marker array')
+    finally:
+        probe.node.destroy_subscription(subscription)
+
+
 def test_retune_without_a_graph_fails_clearly(probe):
     response = probe.call(probe.retune)
     assert not response.success
     assert response.message.startswith('no pose graph to tune')
+
+
+def test_retune_refuses_a_graph_it_cannot_tune_honestly(probe, intel):
+    log, _ = intel
+    stamps, logged = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    two_edges = _constraint_rows(stamps[:2], logged, logged, (0, 1))[:2]
+    probe.constraints.publish(messages.constraints_message(message_class, two_edges))
+    response = _wait(lambda: (r := probe.call(probe.retune)).message.startswith('cannot') and r,
+                     what='the refusal')
+    assert not response.success
+    assert 'cannot tune this graph honestly: 2 constraints for 80 keyframes' in response.message
+    assert probe.phi == []
 
 
 def _constraint_rows(stamps, odometry_poses, loop_poses, loop):
@@ -351,19 +409,19 @@ def test_retune_rejects_the_wrong_loop_closure(probe, intel):
     log, _ = intel
     stamps, logged = log.timestamps[:SCANS], log.laser_poses[:SCANS]
     displaced = _wrong_loop_closure(logged, 50)
-    probe.constraints.publish(conversions.numpy_to_constraints(
+    probe.constraints.publish(messages.constraints_message(message_class, 
         _constraint_rows(stamps, logged, displaced, (10, 70))))
     response = _wait(lambda: (r := probe.call(probe.retune)).message.startswith('Phi*') and r,
                      timeout=60.0, what='a retune on the published graph')
     assert response.success
-    assert 'optimized map consistent' in response.message
+    assert 'optimized map CONSISTENT' in response.message
     start, end = probe.call_window
     during = sum(start < t < end for t in probe.diagnostics_arrivals)
     assert during >= int((end - start) / 0.2) // 2, 'the node kept publishing while tuning'
     phi = _wait(lambda: probe.phi and probe.phi[-1], what='the tuned Phi')
     assert 1e-6 <= phi <= 16.0
     optimized = _wait(lambda: probe.optimized and probe.optimized[-1], what='optimized path')
-    optimized_stamps, optimized_poses = conversions.path_to_numpy(optimized)
+    optimized_stamps, optimized_poses = messages.path_to_numpy(optimized)
     np.testing.assert_allclose(optimized_stamps, stamps, atol=1e-6)
     error_to_logged = np.linalg.norm(optimized_poses[:, :2] - logged[:, :2], axis=1).max()
     error_to_displaced = np.linalg.norm(optimized_poses[:, :2] - displaced[:, :2], axis=1).max()
@@ -371,8 +429,38 @@ def test_retune_rejects_the_wrong_loop_closure(probe, intel):
     _wait(lambda: probe.status_value('phi') == f'{phi:.6f}', what='Phi in the diagnostics')
 
 
+def test_reset_service_and_automatic_reset_on_a_stamp_jump(probe, intel):
+    log, model = intel
+    response = probe.call(probe.reset)
+    assert response.success and response.message == f'reset: {SCANS} keyframes forgotten'
+    _wait(lambda: probe.status_value('scans') == '0' and probe.status_value('resets') == '1',
+          what='no keyframes after the reset, counted')
+    # the same session again is accepted (no duplicate stamps after a reset)
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    _publish_scans(probe, log, model, range(SCANS))
+    _publish_path(probe, stamps, poses)
+    _wait(lambda: probe.status_value('scans') == str(SCANS), what='the map rebuilt')
+    # a SLAM stack restarting with earlier stamps: the node resets by itself
+    for index in range(6):
+        probe.scan.publish(messages.scan_message(message_class, stamps[index] - 100.0,
+                                                 log.ranges[index], model))
+        time.sleep(0.004)
+    _wait(lambda: probe.status_value('resets') == '2', what='an automatic reset')
+    assert 'scan stamps jumped back' in probe.status_value('last reset')
+    _wait(lambda: probe.status_value('scans') == '0'
+          and probe.status_value('buffered scans') == '6',
+          what='the new session buffered, no keyframes of the old one')
+
+
 def test_diagnostics_turn_stale_when_inputs_stop(probe, node_process):
     status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.STALE
                    and s, what='diagnostics STALE')
     assert status.message.startswith('no input for')
     assert node_process.poll() is None
+
+
+def test_parameter_table_of_the_docs_is_generated_from_the_settings():
+    from map_consistency_ros.ros.settings import parameter_table
+    text = (REPO / 'docs' / 'node.md').read_text()
+    begin = text.index('-->\n', text.index('<!-- parameters: generated')) + 4
+    assert text[begin:text.index('<!-- end of parameters -->')] == parameter_table()

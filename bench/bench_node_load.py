@@ -1,0 +1,277 @@
+"""Load on the live node: real logs streamed over DDS into the node process.
+
+    .venv/bin/python bench/bench_node_load.py [--logs intel fr079] [--rates 100 400]
+                                              [--path-every 10] [--scans N] [--no-reference]
+
+For each log and rate a fresh node process (defaults of config/map_consistency.yaml) gets the
+log's scans at the rate and, every `--path-every` scans, the growing keyframe Path of the
+corrected poses (the node's contract: the full estimate each time), as a SLAM back-end would
+publish them. Printed per run: keyframes registered / scans sent, scans the node reports lost
+(`lost scans` and `poses without scan` of /diagnostics), the node's update latency (arrival of
+the Path -> verdict published, from ~/report) as median / p99 overall and per map-size bucket
+with the time per stage (monitor update, snapshot, markers, publishing), the node's peak RSS,
+and the time SIGINT takes to end it, beside the same Path updates through the feed in-process
+(the reference). Targets (issue 12): at 400 scans/s every scan a keyframe
+or the loss reported; median < 10 ms and p99 < 50 ms at 100 scans/s.
+
+Paths are pre-serialized (a prefix of the full Path's CDR bytes, so the publisher keeps pace);
+the publisher and the node share the machine, so latencies are upper bounds.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / 'shared' / 'data'
+LOGS = {'intel': DATA / 'intel' / 'intel.gfs.log',
+        'fr079': DATA / 'fr079' / 'freiburg-079-corrected.log.gz'}
+BUCKETS = 6
+
+
+def path_prefixes(stamps: np.ndarray, poses: np.ndarray):
+    """A function k -> CDR bytes of the Path of the first k poses, cut from one serialization.
+
+    Every PoseStamped after the first has the same size (its fields realign at the same
+    offset), so a prefix of the full message with the sequence length patched is the
+    serialization of the shorter Path.
+    """
+    from rclpy.serialization import serialize_message
+
+    from map_consistency_ros.io import messages
+    from map_consistency_ros.ros.conversions import message_class
+
+    def serialized(count: int) -> bytes:
+        return serialize_message(messages.path_message(message_class, stamps[:count],
+                                                       poses[:count], 'map',
+                                                       stamp=float(stamps[-1])))
+
+    empty, one, two = (len(serialized(count)) for count in (0, 1, 2))
+    full = serialized(len(stamps))
+    first, entry = one - empty, two - one
+    count_at = empty - 4
+
+    def prefix(count: int) -> bytes:
+        end = empty + (first + (count - 1) * entry if count else 0)
+        return full[:count_at] + struct.pack('<I', count) + full[count_at + 4:end]
+
+    return prefix
+
+
+class Observer:
+    """Subscribes to the node's report and diagnostics."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('load_observer', context=self.context)
+        self.reports: list[dict] = []
+        self.status: dict[str, str] = {}
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(String, '/map_consistency/report',
+                                      lambda m: self.reports.append(json.loads(m.data)), qos)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_status, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def _on_status(self, msg) -> None:
+        for status in msg.status:
+            if status.name == 'map_consistency: map':
+                self.status = {kv.key: kv.value for kv in status.values}
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+def peak_rss_mib(pid: int) -> float:
+    with open(f'/proc/{pid}/status') as status:
+        for line in status:
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) / 1024.0
+    return float('nan')
+
+
+def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
+    """Seconds of each Path update of the same stream through the feed without ROS (the
+    reference: what the node adds is conversion, queueing, markers, publishing, sharing)."""
+    from map_consistency_ros.core.feed import MonitorFeed
+    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    feed = MonitorFeed()
+    seconds = []
+    for k in range(len(stamps)):
+        feed.apply(Scan(stamp=float(stamps[k]), ranges=ranges[k], model=model))
+        if (k + 1) % path_every == 0 or k + 1 == len(stamps):
+            start = time.perf_counter()
+            feed.apply(KeyframeEstimate(stamps=stamps[:k + 1], poses=poses[:k + 1]))
+            seconds.append(time.perf_counter() - start)
+    return np.array(seconds)
+
+
+def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool) -> None:
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message
+    from std_srvs.srv import Trigger
+
+    from map_consistency_ros.core import se2
+    from map_consistency_ros.io import messages
+    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+    from map_consistency_ros.ros.conversions import message_class
+
+    log = read_carmen_log(LOGS[name])
+    model = sensor_model(log)
+    count = log.scan_count if limit is None else min(limit, log.scan_count)
+    order = np.argsort(log.timestamps[:count], kind='stable')  # a driver stamps in order
+    stamps, poses, ranges = (log.timestamps[order], log.laser_poses[order],
+                             log.ranges[order])
+    scans = [serialize_message(messages.scan_message(message_class, stamps[k], ranges[k], model))
+             for k in range(count)]
+    prefix = path_prefixes(stamps, poses)
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 200)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    node = subprocess.Popen([sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
+                             '--params-file', str(REPO / 'config' / 'map_consistency.yaml')],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.environ.update(env)
+    observer = Observer()
+    try:
+        publisher_node = observer.node
+        scan_pub = publisher_node.create_publisher(message_class(messages.SCAN_TYPE), 'scan',
+                                                   QoSProfile(depth=1000,
+                                                              reliability=ReliabilityPolicy
+                                                              .BEST_EFFORT))
+        path_pub = publisher_node.create_publisher(message_class(messages.PATH_TYPE),
+                                                   'trajectory', 10)
+        deadline = time.monotonic() + 30
+        while (scan_pub.get_subscription_count() == 0 or path_pub.get_subscription_count() == 0
+               or not observer.status) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        start = time.monotonic()
+        for k in range(count):
+            due = start + k / rate
+            delay = due - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            scan_pub.publish(scans[k])
+            if (k + 1) % path_every == 0 or k + 1 == count:
+                path_pub.publish(prefix(k + 1))
+        streamed = time.monotonic() - start
+        settle = time.monotonic() + 60  # the node may be behind: let it catch up, within reason
+        while time.monotonic() < settle:
+            time.sleep(0.5)
+            if observer.reports and observer.reports[-1]['scans'] == count:
+                break
+        time.sleep(1.5)  # a diagnostics period or so for the last figures
+        waited = time.monotonic() - start - streamed
+        rss = peak_rss_mib(node.pid)
+        reports, status = list(observer.reports), dict(observer.status)
+        # SIGINT during a retune of the map: odometry edges and one loop closure
+        constraints = publisher_node.create_publisher(
+            message_class(messages.CONSTRAINTS_TYPE), 'constraints', 10)
+        information = [100.0, 0.0, 0.0, 100.0, 0.0, 400.0]
+        rows = [[stamps[k], stamps[k + 1], *se2.relative(poses[k], poses[k + 1]), *information]
+                for k in range(count - 1)]
+        rows.append([stamps[0], stamps[count // 2],
+                     *se2.relative(poses[0], poses[count // 2]), *information])
+        constraints.publish(messages.constraints_message(message_class, np.array(rows)))
+        time.sleep(1.0)
+        retune = publisher_node.create_client(Trigger, '/map_consistency/retune_dcs')
+        answer = retune.call_async(Trigger.Request())
+        time.sleep(2.0)
+        retuning = not answer.done()
+        stop_start = time.monotonic()
+        node.send_signal(signal.SIGINT)
+        node.wait(timeout=20)
+        stop_seconds = time.monotonic() - stop_start
+        deadline = time.monotonic() + 5
+        while not answer.done() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        answered = answer.result().message if answer.done() else "no answer"
+    finally:
+        observer.close()
+        if node.poll() is None:
+            node.kill()
+    keyframes = reports[-1]['scans'] if reports else 0
+    print(f'\n{name}: {count} scans at {rate:g} scans/s (streamed in {streamed:.1f} s), '
+          f'a Path every {path_every} scans')
+    print(f'  keyframes registered / scans sent   {keyframes} / {count}')
+    print(f'  reported lost                        lost scans {status.get("lost scans")}, '
+          f'poses without scan {status.get("poses without scan")}, '
+          f'missing from stamps {status.get("scans missing from stamps")}')
+    waiting = int(status.get('queued scans', 0)) + int(status.get('buffered scans', 0))
+    print(f'  still waiting in the node (behind)   {waiting} scans queued or buffered after '
+          f'{waited:.0f} s')
+    honest = keyframes == count or (int(status.get('lost scans', 0)) + waiting
+                                    + int(status.get('poses without scan', 0))) >= count - keyframes
+    print(f'  every scan a keyframe or its loss reported: {"yes" if honest else "NO"}')
+    latency = np.array([r['update_latency_s'] for r in reports]) * 1e3
+    if latency.size:
+        print(f'  update latency (ms)                  median {np.median(latency):.1f}, '
+              f'p99 {np.percentile(latency, 99):.1f}, max {latency.max():.1f} '
+              f'over {latency.size} updates   (target: median < 10, p99 < 50)')
+        sizes = np.array([r['scans'] for r in reports])
+        edges = np.linspace(0, count, BUCKETS + 1)
+        print('  keyframes        updates  median  p99   | monitor snapshot markers publish '
+              '(median ms)')
+        for low, high in zip(edges[:-1], edges[1:]):
+            inside = (sizes > low) & (sizes <= high)
+            if not inside.any():
+                continue
+            stage = {key: np.median([r['timing'].get(key, 0.0) for r, keep in
+                                     zip(reports, inside) if keep]) * 1e3
+                     for key in ('monitor_s', 'snapshot_s', 'markers_s', 'publish_s')}
+            print(f'  {int(low) + 1:>5}-{int(high):<5}  {inside.sum():>8}  '
+                  f'{np.median(latency[inside]):6.1f} {np.percentile(latency[inside], 99):6.1f}'
+                  f' | {stage["monitor_s"]:7.1f} {stage["snapshot_s"]:8.1f} '
+                  f'{stage["markers_s"]:7.1f} {stage["publish_s"]:7.1f}')
+    if reference:
+        alone = in_process(stamps, ranges, poses, model, path_every) * 1e3
+        print(f'  reference: the same Path updates in-process, no ROS: median '
+              f'{np.median(alone):.1f} ms, p99 {np.percentile(alone, 99):.1f} ms '
+              f'({path_every} keyframes each)')
+    print(f'  node peak RSS                        {rss:.0f} MiB')
+    state = 'during a retune' if retuning else 'after the retune'
+    print(f'  SIGINT -> exit, {state:<20} {stop_seconds:.2f} s (exit code {node.returncode}; '
+          f'the retune call got {answered!r})   (target < 1 s)')
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--logs', nargs='+', default=['intel', 'fr079'], choices=sorted(LOGS))
+    parser.add_argument('--rates', nargs='+', type=float, default=[100.0, 400.0])
+    parser.add_argument('--path-every', type=int, default=10)
+    parser.add_argument('--scans', type=int, default=None, help='only the first N scans')
+    parser.add_argument('--no-reference', action='store_true',
+                        help='skip the in-process reference (minutes on Freiburg 079)')
+    args = parser.parse_args()
+    os.environ.setdefault('ROS_LOG_DIR', '/tmp/bench_node_load_logs')
+    for name in args.logs:
+        for rate in args.rates:
+            run(name, rate, args.path_every, args.scans, not args.no_reference)
+
+
+if __name__ == '__main__':
+    main()

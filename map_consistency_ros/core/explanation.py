@@ -1,0 +1,518 @@
+"""The second stage of the verdict: explain every failed pair as misalignment or change.
+
+The paper's test (consistency.py) asks whether the inconsistency distances of a pair exceed
+sensor noise. On real maps they also do where the world changed between two visits (people,
+doors, chairs, no-return beams), which is no error of the map. This stage explains each failed
+pair that contributes to a flagged scan:
+
+- the submaps around its two scans (`block` consecutive scans each, widened by `margin`) are
+  registered robustly (registration.py): the correction of the later side onto the earlier one,
+  with its covariance and the fraction of the surfaces that agree;
+- misaligned: the correction is determined, plausible (within `max_translation` /
+  `max_rotation_deg`), statistically different from zero, moves the later scan's end points by
+  more than `misalignment_tolerance`, and with it the pair passes the pairwise test;
+- minor: a correction within the tolerance, or not significant, makes the pair pass;
+- change: the static surfaces agree but no rigid correction makes the pair pass;
+- unregistered: the surfaces do not agree or the correction is beyond plausible (a gross error
+  that local registration cannot converge on). Counted as misaligned: a map error of metres
+  must never pass as a change.
+
+Misaligned and unregistered pairs go through the paper's cascaded binomial test per scan; scans
+that fail it form misaligned regions, joined through their pairs and temporal adjacency. The
+map is inconsistent when a misaligned region exists. Changes never fail a map; their deep end
+points are grouped into changed places and reported. `strict` keeps the paper's verdict.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import chdtri
+
+from map_consistency_ros.core import statistics
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  Progress, check_consistency,
+                                                  inconsistent_endpoints, pair_endpoints,
+                                                  robust_statistic)
+from map_consistency_ros.core.measure import pair_measures, point_distances
+from map_consistency_ros.core.parameters import parameter, specs
+from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
+                                                   register_submaps, surface_points)
+from map_consistency_ros.core.scan_geometry import ScanSet
+
+MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
+PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)
+_CLASS_CODE = {name: code for code, name in enumerate(PAIR_CLASSES)}
+
+
+@dataclass(frozen=True)
+class ExplanationSettings:
+    """How failed pairs are explained and what the map may bear (defaults: docs/verdict.md)."""
+
+    misalignment_tolerance: float = parameter(
+        0.1, 'misalignments moving end points further (root mean square) make the map '
+        'inconsistent', 'm', (0.0, 10.0))
+    strict: bool = parameter(
+        False, "the paper's verdict instead: every scan failing its cascaded test fails the map")
+    block: int = parameter(5, 'consecutive scans registered as one rigid submap', 'scans',
+                           (1, 1000))
+    margin: int = parameter(3, 'scans added on each side of a block to its submap', 'scans',
+                            (0, 1000))
+    max_translation: float = parameter(0.5, 'largest correction trusted as a local misalignment',
+                                       'm', (0.01, 100.0))
+    max_rotation_deg: float = parameter(10.0, 'largest rotation trusted as a local misalignment',
+                                        'deg', (0.1, 180.0))
+    significance: float = parameter(
+        0.001, 'level of the chi-square test that a correction differs from zero', '',
+        (1e-12, 0.5))
+    min_registrations: int = parameter(
+        3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
+    gross_fraction: float = parameter(
+        0.5, 'a scan whose pairs fail unexplained more often than this (binomial test) sees a '
+        'gross error, not changes', '', (0.01, 0.99))
+    change_depth: float = parameter(
+        3.0, 'end points this many pair scales inside free space mark a change', 'scales',
+        (0.0, 100.0))
+    change_cell: float = parameter(0.5, 'changed end points closer than this form one place',
+                                   'm', (0.01, 100.0))
+
+    def __post_init__(self) -> None:
+        for spec in specs(ExplanationSettings):
+            spec.check(getattr(self, spec.name))
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class Misalignment:
+    """A region of scans displaced rigidly relative to reference scans."""
+
+    scans: np.ndarray  # the later side, which the correction moves
+    reference_scans: np.ndarray
+    correction: np.ndarray  # (3,) world transform x, y, theta moving `scans` onto the reference
+    correction_std: np.ndarray  # (3,) 1-sigma of the correction
+    displacement: float  # metres, RMS end-point displacement the correction implies; NaN
+    # when the region could not be registered (a gross error)
+    pairs: int  # misaligned or unregistered pairs behind the region
+    registered: bool
+
+
+@dataclass(frozen=True)
+class ChangedPlace:
+    """A cluster of end points inside free space another visit saw (people, moved objects)."""
+
+    scans: np.ndarray
+    x: float
+    y: float
+    points: int
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """The verdict on a map and its explanation."""
+
+    result: ConsistencyResult
+    settings: ExplanationSettings
+    explained_pairs: np.ndarray  # (E,) rows of result.pairs that were explained
+    pair_classes: np.ndarray  # (E,) int codes into PAIR_CLASSES
+    pair_corrections: np.ndarray  # (E, 3) world transforms moving the later scan
+    pair_displacements: np.ndarray  # (E,) metres
+    misaligned_scans: np.ndarray  # (N,) bool: failed the cascaded test on misaligned pairs
+    misalignments: tuple[Misalignment, ...]
+    changes: tuple[ChangedPlace, ...]
+
+    @property
+    def consistent(self) -> bool:
+        if self.settings.strict:
+            return self.result.consistent
+        return not self.misalignments
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """(N,) the scans that make the map inconsistent under the active verdict."""
+        return self.result.inconsistent if self.settings.strict else self.misaligned_scans
+
+    def class_counts(self) -> dict[str, int]:
+        counts = np.bincount(self.pair_classes, minlength=len(PAIR_CLASSES))
+        return {name: int(counts[code]) for code, name in enumerate(PAIR_CLASSES)}
+
+    def summary_line(self) -> str:
+        """e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14 changed places."""
+        verdict = 'CONSISTENT' if self.consistent else 'INCONSISTENT'
+        places = len(self.changes)
+        changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
+        if self.settings.strict:
+            flagged = int(self.result.inconsistent.sum())
+            return f'{verdict}: {flagged} scans fail the paper\'s test (strict verdict); {changes}'
+        if not self.misalignments:
+            tolerance = self.settings.misalignment_tolerance
+            return f'{verdict}: no misalignment above {tolerance:.2f} m; {changes}'
+        largest = _largest(self.misalignments)
+        if largest.registered:
+            size = (f'largest {largest.displacement:.2f} m, '
+                    f'{abs(math.degrees(largest.correction[2])):.1f} deg')
+        else:
+            size = 'largest beyond local registration, a gross error'
+        count = len(self.misalignments)
+        regions = f'{count} misaligned region{"s" if count > 1 else ""}'
+        return f'{verdict}: {regions} ({size}); {changes}'
+
+
+def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
+    unregistered = [item for item in misalignments if not item.registered]
+    if unregistered:
+        return max(unregistered, key=lambda item: item.pairs)
+    return max(misalignments, key=lambda item: item.displacement)
+
+
+def _submap(block: int, settings: ExplanationSettings, scan_count: int) -> tuple[int, int]:
+    low = block * settings.block - settings.margin
+    high = (block + 1) * settings.block + settings.margin
+    return max(low, 0), min(high, scan_count)
+
+
+def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
+           scan_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Registration tasks (r0, r1, q0, q1) per block pair, and the task of every pair.
+
+    Submaps of blocks close in time would share scans: there each pair gets submaps of its
+    own that reach away from each other (the earlier scan and those before it, the later
+    scan and those after it), so neither straddles the stretch between them.
+    """
+    blocks = pairs // settings.block
+    near = blocks[:, 1] - blocks[:, 0] <= 1 + (2 * settings.margin) // max(settings.block, 1)
+    keys = np.where(near, -1 - np.arange(len(pairs)), blocks[:, 0] * scan_count + blocks[:, 1])
+    unique, task_of_pair = np.unique(keys, return_inverse=True)
+    tasks = np.zeros((unique.size, 4), dtype=np.int64)
+    first_pair = np.zeros(unique.size, dtype=np.int64)
+    first_pair[task_of_pair[::-1]] = np.arange(len(pairs))[::-1]
+    reach = settings.margin + settings.block // 2
+    for task, pair in enumerate(first_pair):
+        i, j = pairs[pair]
+        if near[pair]:
+            tasks[task] = (max(i - reach, 0), i + 1, j, min(j + reach + 1, scan_count))
+        else:
+            tasks[task] = (*_submap(int(blocks[pair, 0]), settings, scan_count),
+                           *_submap(int(blocks[pair, 1]), settings, scan_count))
+    return tasks, task_of_pair.reshape(-1)
+
+
+def _apply(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """World transforms (E, 3) applied to points (E, ..., 2)."""
+    cos = np.cos(transforms[:, 2]).reshape(-1, *([1] * (points.ndim - 2)))
+    sin = np.sin(transforms[:, 2]).reshape(cos.shape)
+    x = cos * points[..., 0] - sin * points[..., 1] + transforms[:, 0].reshape(cos.shape)
+    y = sin * points[..., 0] + cos * points[..., 1] + transforms[:, 1].reshape(cos.shape)
+    return np.stack([x, y], axis=-1)
+
+
+def _rms_displacement(transforms: np.ndarray, points: np.ndarray,
+                      valid: np.ndarray) -> np.ndarray:
+    """(E,) root mean square distance the transforms (E, 3) move the valid points (E, K, 2)."""
+    shifted = _apply(transforms, points) - points
+    square = np.where(valid, shifted[..., 0] ** 2 + shifted[..., 1] ** 2, 0.0)
+    return np.sqrt(square.sum(axis=1) / np.maximum(valid.sum(axis=1), 1))
+
+
+def _corrected_pairs_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+                          transforms: np.ndarray) -> np.ndarray:
+    """Whether each pair (i, j) passes the pairwise test with j moved by its transform."""
+    first, second = pairs[:, 0], pairs[:, 1]
+    moved = scans.sensor_poses[second].copy()
+    moved[:, :2] = _apply(transforms, moved[:, None, :2])[:, 0]
+    moved[:, 2] += transforms[:, 2]
+    poses = np.empty((2 * len(pairs), 3))
+    poses[0::2], poses[1::2] = scans.sensor_poses[first], moved
+    ranges = np.empty((2 * len(pairs), scans.ranges.shape[1]))
+    ranges[0::2], ranges[1::2] = scans.ranges[first], scans.ranges[second]
+    valid = np.empty(ranges.shape, dtype=bool)
+    valid[0::2], valid[1::2] = scans.valid[first], scans.valid[second]
+    placed = ScanSet(sensor_poses=poses, ranges=ranges, valid=valid, model=scans.model)
+    index = np.arange(len(pairs))
+    measures = pair_measures(placed, np.stack([2 * index, 2 * index + 1], axis=1),
+                             keep_largest=max(result.parameters.trim_largest, 1))
+    scale = np.maximum(result.scales[first], result.scales[second])
+    tested, statistic = robust_statistic(measures, scale, result.parameters)
+    return ~(tested & (statistic > statistics.normal_quantile(result.parameters.alpha)))
+
+
+def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np.ndarray,
+              displacement: np.ndarray,
+              settings: ExplanationSettings) -> np.ndarray:
+    correction = registrations.corrections[task_of_pair]
+    covariance = registrations.covariances[task_of_pair]
+    determined = registrations.determined[task_of_pair]
+    plausible = ((np.hypot(correction[:, 0], correction[:, 1]) <= settings.max_translation)
+                 & (np.abs(np.degrees(correction[:, 2])) <= settings.max_rotation_deg))
+    registered = determined & plausible
+    mahalanobis = np.full(len(task_of_pair), 0.0)
+    if registered.any():
+        information = np.linalg.inv(covariance[registered])
+        delta = correction[registered]
+        mahalanobis[registered] = np.einsum('ei,eij,ej->e', delta, information, delta)
+    significant = mahalanobis > chdtri(3, settings.significance)
+    codes = np.full(len(task_of_pair), _CLASS_CODE[CHANGE], dtype=np.int64)
+    codes[determined & ~plausible & ~passes] = _CLASS_CODE[UNREGISTERED]
+    codes[registered & passes] = _CLASS_CODE[MINOR]
+    codes[registered & passes & significant
+          & (displacement > settings.misalignment_tolerance)] = _CLASS_CODE[MISALIGNED]
+    return codes
+
+
+def _cascaded(result: ConsistencyResult, pairs: np.ndarray, bad: np.ndarray,
+              probability: float | None = None) -> np.ndarray:
+    """Scans with more `bad` pairs than the cascaded binomial test allows at failure
+    `probability` per pair (default: the paper's)."""
+    count = result.scan_count
+    bad_counts = (np.bincount(pairs[bad, 0], minlength=count)
+                  + np.bincount(pairs[bad, 1], minlength=count))
+    if probability is None:
+        return bad_counts > result.critical_counts
+    return bad_counts > statistics.binomial_critical_count(
+        result.overlap_counts, probability, result.parameters.binomial_alpha)
+
+
+def _components(scan_count: int, links: np.ndarray) -> np.ndarray:
+    """Union-find labels of scans joined by the rows of `links` (L, 2)."""
+    parent = np.arange(scan_count)
+
+    def root(node: int) -> int:
+        while parent[node] != node:
+            parent[node] = parent[parent[node]]
+            node = parent[node]
+        return node
+
+    for a, b in links:
+        ra, rb = root(int(a)), root(int(b))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    return np.array([root(node) for node in range(scan_count)])
+
+
+def _agreeing_registrations(scans: ScanSet, rows: np.ndarray, pairs: np.ndarray,
+                            transforms: np.ndarray, task_of_pair: np.ndarray,
+                            correction: np.ndarray, settings: ExplanationSettings) -> int:
+    """Independent registrations (tasks) whose correction is within the tolerance of the
+    region's: a loop-closure error moves a stretch rigidly, so its submaps agree."""
+    later = pairs[rows, 1]
+    difference = _rms_displacement(transforms[rows], scans.endpoints[later],
+                                   scans.valid[later])
+    reference = _rms_displacement(np.broadcast_to(correction, (rows.size, 3)),
+                                  scans.endpoints[later], scans.valid[later])
+    agree = np.abs(difference - reference) <= settings.misalignment_tolerance
+    return int(np.unique(task_of_pair[rows[agree]]).size)
+
+
+def _regions(scans: ScanSet, pairs: np.ndarray, bad: np.ndarray, codes: np.ndarray,
+             transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
+             flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+    on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
+    if not on_flagged.any():
+        return ()
+    indices = np.flatnonzero(flagged)
+    adjacent = np.stack([indices[:-1], indices[1:]], axis=1)
+    adjacent = adjacent[np.diff(indices) <= settings.block]
+    labels = _components(scans.scan_count, np.concatenate([pairs[on_flagged], adjacent]))
+    regions = []
+    for label in np.unique(labels[pairs[on_flagged, 0]]):
+        rows = np.flatnonzero(on_flagged & (labels[pairs[:, 0]] == label))
+        moved = np.unique(pairs[rows, 1])
+        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
+        registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
+        registered = registered_rows.size * 2 >= rows.size
+        if registered:
+            correction = np.median(transforms[registered_rows], axis=0)
+            if _agreeing_registrations(scans, registered_rows, pairs, transforms, task_of_pair,
+                                       correction, settings) < settings.min_registrations:
+                continue
+            spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
+                                                   axis2=2), axis=0))
+            displacement = float(_rms_displacement(
+                correction[None], scans.endpoints[moved].reshape(1, -1, 2),
+                scans.valid[moved].reshape(1, -1))[0])
+        else:
+            # beyond registration: a displaced stretch (at least a block of scans) that several
+            # independent registrations fail on
+            if (np.unique(task_of_pair[rows]).size < settings.min_registrations
+                    or moved.size < settings.block):
+                continue
+            correction = np.full(3, np.nan)
+            spread = np.full(3, np.nan)
+            displacement = math.nan
+        regions.append(Misalignment(scans=moved, reference_scans=reference,
+                                    correction=correction, correction_std=spread,
+                                    displacement=displacement, pairs=int(rows.size),
+                                    registered=bool(registered)))
+    return tuple(regions)
+
+
+def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> np.ndarray:
+    flagged = np.zeros(scan_count, dtype=bool)
+    for region in misalignments:
+        flagged[region.scans] = True
+        flagged[region.reference_scans] = True
+    return flagged
+
+
+def _changes(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+             settings: ExplanationSettings) -> tuple[ChangedPlace, ...]:
+    points, owners = [], []
+    for i, j in pairs:
+        limit = settings.change_depth * max(result.scales[i], result.scales[j])
+        of_j, of_i = point_distances(scans, int(i), int(j))
+        for scan, depth in ((j, of_j), (i, of_i)):
+            deep = scans.endpoints[scan][depth > limit]
+            points.append(deep)
+            owners.append(np.full(len(deep), scan))
+    if not points or not sum(len(part) for part in points):
+        return ()
+    points, owners = np.concatenate(points), np.concatenate(owners)
+    cells = np.floor(points / settings.change_cell).astype(np.int64)
+    unique, cell_of_point = np.unique(cells, axis=0, return_inverse=True)
+    cell_of_point = cell_of_point.reshape(-1)
+    lookup = {tuple(cell): index for index, cell in enumerate(unique)}
+    links = [(index, lookup[(cell[0] + dx, cell[1] + dy)])
+             for index, cell in enumerate(unique) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+             if (cell[0] + dx, cell[1] + dy) in lookup]
+    labels = _components(len(unique), np.asarray(links, dtype=np.int64).reshape(-1, 2))
+    places = []
+    for label in np.unique(labels):
+        members = labels[cell_of_point] == label
+        centre = points[members].mean(axis=0)
+        places.append(ChangedPlace(scans=np.unique(owners[members]), x=float(centre[0]),
+                                   y=float(centre[1]), points=int(members.sum())))
+    return tuple(sorted(places, key=lambda place: -place.points))
+
+
+def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessment:
+    return Assessment(result=result, settings=settings, explained_pairs=np.zeros(0, np.int64),
+                      pair_classes=np.zeros(0, np.int64), pair_corrections=np.zeros((0, 3)),
+                      pair_displacements=np.zeros(0),
+                      misaligned_scans=np.zeros(result.scan_count, dtype=bool),
+                      misalignments=(), changes=())
+
+
+class RegistrationCache:
+    """Registrations of submaps already registered, keyed by their scans and poses.
+
+    A live map changes a little per keyframe: most registrations of the last explanation
+    still hold. Bounded: the oldest entries go first beyond `capacity`.
+    """
+
+    def __init__(self, capacity: int = 50_000) -> None:
+        self.capacity = capacity
+        self._entries: dict[bytes, tuple] = {}
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @staticmethod
+    def _keys(scans: ScanSet, tasks: np.ndarray) -> list[bytes]:
+        poses, ranges = scans.sensor_poses, scans.ranges
+        return [b''.join((row.tobytes(), poses[row[0]:row[1]].tobytes(),
+                          poses[row[2]:row[3]].tobytes(),
+                          ranges[row[0]:row[1], ::16].tobytes(),
+                          ranges[row[2]:row[3], ::16].tobytes())) for row in tasks]
+
+    def register(self, scans: ScanSet, tasks: np.ndarray,
+                 settings: RegistrationSettings | None) -> Registrations:
+        """register_submaps of `tasks`, computing only those not registered before."""
+        keys = self._keys(scans, tasks)
+        missing = [index for index, key in enumerate(keys) if key not in self._entries]
+        if missing:
+            fresh = register_submaps(surface_points(scans.endpoints, scans.valid),
+                                     tasks[missing], settings)
+            for row, index in enumerate(missing):
+                self._entries[keys[index]] = (
+                    fresh.corrections[row], fresh.centroids[row], fresh.covariances[row],
+                    fresh.matched[row], fresh.determined[row])
+        entries = [self._entries[key] for key in keys]
+        while len(self._entries) > self.capacity:
+            del self._entries[next(iter(self._entries))]
+        if not entries:
+            return register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                    settings)
+        corrections, centroids, covariances, matched, determined = (
+            np.array(column) for column in zip(*entries))
+        return Registrations(corrections=corrections.reshape(-1, 3),
+                             centroids=centroids.reshape(-1, 2),
+                             covariances=covariances.reshape(-1, 3, 3),
+                             matched=matched.astype(np.int64),
+                             determined=determined.astype(bool))
+
+
+def explain(scans: ScanSet, result: ConsistencyResult,
+            settings: ExplanationSettings | None = None,
+            registration: RegistrationSettings | None = None,
+            cache: RegistrationCache | None = None) -> Assessment:
+    """Explain the failed pairs of `result` on the map `scans` and make the verdict.
+
+    Only failed pairs that involve a scan flagged by the paper's test are explained: the others
+    cannot change the verdict. A map that passes the paper's test costs nothing here. A
+    `cache` kept across calls on a growing map skips the registrations that still hold.
+    """
+    settings = settings or ExplanationSettings()
+    if scans.scan_count != result.scan_count:
+        raise ValueError(f'{scans.scan_count} scans for a result on {result.scan_count}')
+    pairs_all = result.pairs
+    rows = np.flatnonzero(result.failed & (result.inconsistent[pairs_all[:, 0]]
+                                           | result.inconsistent[pairs_all[:, 1]]))
+    if rows.size == 0:
+        return _empty(result, settings)
+    pairs = pairs_all[rows]
+    tasks, task_of_pair = _tasks(pairs, settings, scans.scan_count)
+    registrations = (register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                      registration) if cache is None
+                     else cache.register(scans, tasks, registration))
+    transforms = registrations.world_transforms()[task_of_pair]
+    passes = _corrected_pairs_pass(scans, result, pairs, transforms)
+    displacement = _rms_displacement(transforms, scans.endpoints[pairs[:, 1]],
+                                     scans.valid[pairs[:, 1]])
+    codes = _classify(registrations, task_of_pair, passes, displacement, settings)
+    misaligned = codes == _CLASS_CODE[MISALIGNED]
+    unexplained = (codes == _CLASS_CODE[CHANGE]) | (codes == _CLASS_CODE[UNREGISTERED])
+    # Changes are local: a scan most of whose overlaps fail beyond any small correction sees
+    # a gross error, which must never pass as a change.
+    gross = _cascaded(result, pairs, unexplained, settings.gross_fraction)
+    # A correction beyond any plausible local one that still leaves the pair failing is no
+    # change either: a stretch displaced further than registration reaches.
+    beyond = codes == _CLASS_CODE[UNREGISTERED]
+    flagged = _cascaded(result, pairs, misaligned | beyond) | gross
+    bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
+    misalignments = _regions(scans, pairs, bad, codes, transforms,
+                             registrations.covariances[task_of_pair], task_of_pair, flagged,
+                             settings)
+    flagged = _region_scans(misalignments, scans.scan_count)
+    changes = _changes(scans, result, pairs[codes == _CLASS_CODE[CHANGE]], settings)
+    return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
+                      pair_corrections=transforms, pair_displacements=displacement,
+                      misaligned_scans=flagged, misalignments=misalignments, changes=changes)
+
+
+def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,
+              settings: ExplanationSettings | None = None,
+              reference_scans: ScanSet | None = None,
+              progress: Progress | None = None) -> Assessment:
+    """Both stages on scans placed in the map: the paper's test, then the explanation."""
+    result = check_consistency(scans, parameters, reference_scans, progress)
+    return explain(scans, result, settings)
+
+
+def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int = 200,
+                         min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) inside the other scan's polygon in the pairs behind the verdict: the
+    misaligned and unregistered pairs of flagged scans (strict: every failed pair of flagged
+    scans), the `max_pairs` with the largest statistic. A point counts when it lies deeper
+    than `min_depth` times the pair's scale."""
+    result = assessment.result
+    if assessment.settings.strict:
+        return inconsistent_endpoints(scans, result, max_pairs, min_depth)
+    flagged = assessment.misaligned_scans
+    rows = assessment.explained_pairs
+    pairs = result.pairs[rows]
+    bad = np.isin(assessment.pair_classes, (_CLASS_CODE[MISALIGNED], _CLASS_CODE[UNREGISTERED]))
+    keep = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
+    chosen = rows[keep][np.argsort(-result.statistic[rows[keep]], kind='stable')[:max_pairs]]
+    return pair_endpoints(scans, result, chosen, min_depth)

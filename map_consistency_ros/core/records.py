@@ -1,0 +1,54 @@
+"""The input contract of the monitor: one record type per kind of input message.
+
+The node and bag replay convert their messages into these records (io/messages.py) and apply
+them through one feed (core/feed.py), so both see exactly the same input. Stamps are float
+seconds, poses (x, y, yaw).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from map_consistency_ros.core.scan_geometry import SensorModel
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One LaserScan; `model.max_range` is its range_max capped at the usable range."""
+
+    stamp: float
+    ranges: np.ndarray  # (K,) metres
+    model: SensorModel
+    frame_id: str = ''
+
+
+@dataclass(frozen=True)
+class KeyframeEstimate:
+    """The SLAM back-end's full current keyframe estimate (a Path, or a bridge's output):
+    each stamp (M,) is the stamp of the scan its keyframe was built from, poses (M, 3)."""
+
+    stamps: np.ndarray
+    poses: np.ndarray
+    frame_id: str = ''
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    """One pose of a single-pose message (Odometry, PoseStamped, PoseWithCovarianceStamped):
+    the pose of `child_frame_id` in `frame_id` at `stamp`."""
+
+    stamp: float
+    pose: np.ndarray  # (3,)
+    frame_id: str = ''
+    child_frame_id: str = ''
+
+
+@dataclass(frozen=True)
+class Constraints:
+    """The full edge set: rows (E, 11) laid out as posegraph.CONSTRAINT_FIELDS."""
+
+    rows: np.ndarray
+
+
+Record = Scan | KeyframeEstimate | PoseSample | Constraints

@@ -1,0 +1,226 @@
+"""ROS messages <-> numpy and input records, without ROS: the one owner of the message formats.
+
+Reading: functions read message objects by attribute only, so they serve rclpy's messages
+(the node) and rosbags' deserialized ones (bag replay) alike; `to_record` turns one message of
+a known type into its core record and raises ValueError, with a message fit for a log line,
+when its content is unusable.
+
+Writing: builders take `types`, a function from a type name ('nav_msgs/msg/Path') to its
+message class (rclpy's classes, or a rosbags typestore's), and fill every field, as the
+rosbags classes require.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.posegraph import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
+from map_consistency_ros.core.records import (Constraints, KeyframeEstimate, PoseSample, Record,
+                                              Scan)
+from map_consistency_ros.core.scan_geometry import SensorModel
+
+SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
+PATH_TYPE = 'nav_msgs/msg/Path'
+ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
+POSE_STAMPED_TYPE = 'geometry_msgs/msg/PoseStamped'
+POSE_COVARIANCE_TYPE = 'geometry_msgs/msg/PoseWithCovarianceStamped'
+CONSTRAINTS_TYPE = 'std_msgs/msg/Float64MultiArray'
+SINGLE_POSE_TYPES = (ODOMETRY_TYPE, POSE_STAMPED_TYPE, POSE_COVARIANCE_TYPE)
+POSE_TYPES = (PATH_TYPE,) + SINGLE_POSE_TYPES
+# The node's pose_source parameter -> message type of its pose topic.
+POSE_SOURCE_TYPES = {'path': PATH_TYPE, 'odometry': ODOMETRY_TYPE, 'pose': POSE_STAMPED_TYPE,
+                     'pose_with_covariance': POSE_COVARIANCE_TYPE}
+
+MessageTypes = Callable[[str], type]
+
+
+# -- messages -> numpy --------------------------------------------------------------------------
+
+def stamp_to_seconds(stamp) -> float:
+    """A builtin_interfaces/Time (or ROS 1 time) as float seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, SensorModel]:
+    """(stamp, ranges (K,), SensorModel) of a LaserScan.
+
+    The usable range is the smaller of the scan's `range_max` and `max_range` (beams beyond it
+    count as free space). NaN / inf ranges are kept. Raises ValueError for an empty scan,
+    non-finite or non-positive angle fields, or angle fields that disagree with the number of
+    ranges by more than one beam (drivers differ on whether angle_max is inclusive).
+    """
+    ranges = np.asarray(msg.ranges, dtype=np.float64)
+    beams = ranges.size
+    if beams < 2:
+        raise ValueError(f'scan has {beams} ranges; at least 2 are needed')
+    angle_min, angle_max, increment = msg.angle_min, msg.angle_max, msg.angle_increment
+    if not all(math.isfinite(v) for v in (angle_min, angle_max, increment)) or increment <= 0.0:
+        raise ValueError(f'scan angle fields are unusable: angle_min={angle_min}, '
+                         f'angle_max={angle_max}, angle_increment={increment}')
+    implied = (angle_max - angle_min) / increment + 1.0
+    if abs(implied - beams) > 1.0 + 1e-6:
+        raise ValueError(f'scan angles imply {implied:.1f} beams but it has {beams} ranges '
+                         f'(angle_min={angle_min}, angle_max={angle_max}, '
+                         f'angle_increment={increment})')
+    usable = min(msg.range_max, max_range) if math.isfinite(msg.range_max) else max_range
+    range_min = msg.range_min if math.isfinite(msg.range_min) and msg.range_min > 0.0 else 0.0
+    model = SensorModel(angle_min=angle_min, angle_increment=increment, max_range=usable,
+                        range_min=range_min)
+    model.check_beam_count(beams)
+    stamp = stamp_to_seconds(msg.header.stamp)
+    return stamp, ranges, model
+
+
+def pose_to_numpy(pose) -> np.ndarray:
+    """(x, y, yaw) of a geometry_msgs/Pose; yaw NaN for an unusable quaternion."""
+    orientation = pose.orientation
+    return np.array([pose.position.x, pose.position.y,
+                     se2.yaw_from_quaternion(orientation.x, orientation.y, orientation.z,
+                                             orientation.w)])
+
+
+def path_to_numpy(msg) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps (M,), poses (M, 3) x, y, yaw) of a Path's PoseStamped entries.
+
+    Non-finite values, and a NaN yaw for an unusable quaternion (zero, or with a non-finite
+    component), are passed on: the monitor skips those poses and says so.
+    """
+    count = len(msg.poses)
+    stamps = np.empty(count)
+    values = np.empty((count, 6))
+    for index, entry in enumerate(msg.poses):
+        position, orientation = entry.pose.position, entry.pose.orientation
+        stamps[index] = stamp_to_seconds(entry.header.stamp)
+        values[index] = (position.x, position.y, orientation.x, orientation.y, orientation.z,
+                         orientation.w)
+    yaw = se2.yaw_from_quaternion(*values[:, 2:].T)
+    return stamps, np.column_stack([values[:, :2], yaw])
+
+
+def constraints_to_numpy(msg) -> np.ndarray:
+    """Edge rows (E, 11) of a Float64MultiArray, in the order of CONSTRAINT_FIELDS.
+
+    With a layout, it must be two dimensions (edges, 11) whose sizes match the data after
+    data_offset; without one, the data length must be a multiple of 11. Raises ValueError
+    otherwise.
+    """
+    data = np.asarray(msg.data, dtype=np.float64)
+    width = CONSTRAINT_WIDTH
+    dims = msg.layout.dim
+    offset = msg.layout.data_offset
+    if dims:
+        if len(dims) != 2 or dims[1].size != width:
+            shape = [d.size for d in dims]
+            raise ValueError(f'constraints layout must be (edges, {width}), got {shape}')
+        rows = dims[0].size
+        if offset + rows * width > data.size:
+            raise ValueError(f'constraints layout says {rows} x {width} values from offset '
+                             f'{offset}, but data has {data.size}')
+        return data[offset:offset + rows * width].reshape(rows, width)
+    data = data[offset:]
+    if data.size % width:
+        raise ValueError(f'constraints data has {data.size} values, not a multiple of {width}')
+    return data.reshape(-1, width)
+
+
+def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
+    """The core record of one message of type `msgtype` (one of SCAN_TYPE, POSE_TYPES,
+    CONSTRAINTS_TYPE); ValueError for unusable content."""
+    if msgtype == SCAN_TYPE:
+        stamp, ranges, model = scan_to_numpy(msg, max_range)
+        return Scan(stamp=stamp, ranges=ranges, model=model, frame_id=msg.header.frame_id)
+    if msgtype == PATH_TYPE:
+        stamps, poses = path_to_numpy(msg)
+        return KeyframeEstimate(stamps=stamps, poses=poses, frame_id=msg.header.frame_id)
+    if msgtype == CONSTRAINTS_TYPE:
+        return Constraints(rows=constraints_to_numpy(msg))
+    if msgtype in SINGLE_POSE_TYPES:
+        pose = msg.pose if msgtype == POSE_STAMPED_TYPE else msg.pose.pose
+        return PoseSample(stamp=stamp_to_seconds(msg.header.stamp), pose=pose_to_numpy(pose),
+                          frame_id=msg.header.frame_id,
+                          child_frame_id=getattr(msg, 'child_frame_id', ''))
+    raise ValueError(f'no input record for messages of type {msgtype}')
+
+
+# -- numpy -> messages --------------------------------------------------------------------------
+
+def time_message(types: MessageTypes, seconds: float):
+    """Float seconds as a builtin_interfaces/Time (nanoseconds rounded)."""
+    total = round(seconds * 1e9)
+    return types('builtin_interfaces/msg/Time')(sec=int(total // 1_000_000_000),
+                                                nanosec=int(total % 1_000_000_000))
+
+
+def header_message(types: MessageTypes, stamp: float, frame_id: str):
+    return types('std_msgs/msg/Header')(stamp=time_message(types, stamp), frame_id=frame_id)
+
+
+def scan_message(types: MessageTypes, stamp: float, ranges: np.ndarray, model: SensorModel,
+                 frame_id: str = 'laser'):
+    """A LaserScan of ranges (K,) whose beam k has bearing angle_min + k * angle_increment."""
+    ranges = np.asarray(ranges, dtype=np.float32)
+    return types(SCAN_TYPE)(
+        header=header_message(types, stamp, frame_id), angle_min=float(model.angle_min),
+        angle_max=float(model.angle_min + (ranges.size - 1) * model.angle_increment),
+        angle_increment=float(model.angle_increment), time_increment=0.0, scan_time=0.0,
+        range_min=float(model.range_min), range_max=float(model.max_range), ranges=ranges,
+        intensities=np.zeros(0, dtype=np.float32))
+
+
+def geometry_pose(types: MessageTypes, pose: np.ndarray):
+    """A geometry_msgs/Pose of (x, y, yaw)."""
+    x, y, yaw = (float(v) for v in pose)
+    z, w = se2.quaternion_from_yaw(yaw)
+    return types('geometry_msgs/msg/Pose')(
+        position=types('geometry_msgs/msg/Point')(x=x, y=y, z=0.0),
+        orientation=types('geometry_msgs/msg/Quaternion')(x=0.0, y=0.0, z=z, w=w))
+
+
+def path_message(types: MessageTypes, stamps: np.ndarray, poses: np.ndarray, frame_id: str,
+                 stamp: float | None = None):
+    """A Path of poses (M, 3), each PoseStamped stamped with its scan's stamp; the header
+    stamp is `stamp`, by default the last pose's."""
+    if stamp is None:
+        stamp = float(stamps[-1]) if len(stamps) else 0.0
+    pose_stamped = types(POSE_STAMPED_TYPE)
+    entries = [pose_stamped(header=header_message(types, seconds, frame_id),
+                            pose=geometry_pose(types, pose))
+               for seconds, pose in zip(np.asarray(stamps).tolist(), np.asarray(poses))]
+    return types(PATH_TYPE)(header=header_message(types, stamp, frame_id), poses=entries)
+
+
+def single_pose_message(types: MessageTypes, msgtype: str, stamp: float, pose: np.ndarray,
+                        frame_id: str = 'odom', child_frame_id: str = 'base_link'):
+    """An Odometry, PoseStamped or PoseWithCovarianceStamped of one pose (zero covariance,
+    zero twist)."""
+    header = header_message(types, stamp, frame_id)
+    geometry = geometry_pose(types, pose)
+    if msgtype == POSE_STAMPED_TYPE:
+        return types(msgtype)(header=header, pose=geometry)
+    with_covariance = types('geometry_msgs/msg/PoseWithCovariance')(
+        pose=geometry, covariance=np.zeros(36))
+    if msgtype == POSE_COVARIANCE_TYPE:
+        return types(msgtype)(header=header, pose=with_covariance)
+    if msgtype != ODOMETRY_TYPE:
+        raise ValueError(f'not a single-pose message type: {msgtype}')
+    vector = types('geometry_msgs/msg/Vector3')
+    twist = types('geometry_msgs/msg/TwistWithCovariance')(
+        twist=types('geometry_msgs/msg/Twist')(linear=vector(x=0.0, y=0.0, z=0.0),
+                                               angular=vector(x=0.0, y=0.0, z=0.0)),
+        covariance=np.zeros(36))
+    return types(msgtype)(header=header, child_frame_id=child_frame_id, pose=with_covariance,
+                          twist=twist)
+
+
+def constraints_message(types: MessageTypes, rows: np.ndarray):
+    """Edge rows (E, 11) as a Float64MultiArray with the layout labelled ('edges', 'fields')."""
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, len(CONSTRAINT_FIELDS))
+    dimension = types('std_msgs/msg/MultiArrayDimension')
+    layout = types('std_msgs/msg/MultiArrayLayout')(
+        dim=[dimension(label='edges', size=rows.shape[0], stride=rows.size),
+             dimension(label='fields', size=rows.shape[1], stride=rows.shape[1])],
+        data_offset=0)
+    return types(CONSTRAINTS_TYPE)(layout=layout, data=rows.ravel())

@@ -1,0 +1,162 @@
+"""The second stage on real Intel scans: people and moved doors are changes, a rotated stretch
+is a misalignment, a gross error is never a change."""
+import numpy as np
+import pytest
+
+from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.explanation import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
+                                                  ExplanationSettings, RegistrationCache,
+                                                  check_map, explain)
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.evaluation.suite import displace
+from map_consistency_ros.io import carmen
+
+# The first 290 scans of the Intel lab (the bundled demo map): a loop through the building.
+SCANS = 290
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    return log, carmen.sensor_model(log, max_range=8.0)
+
+
+def _map(intel, poses=None, ranges=None):
+    log, model = intel
+    return ScanSet.from_ranges(log.ranges[:SCANS] if ranges is None else ranges,
+                               log.laser_poses[:SCANS] if poses is None else poses, model)
+
+
+@pytest.fixture(scope='module')
+def corrected(intel):
+    return check_map(_map(intel))
+
+
+def _obstacle(intel, scan, first_beam, beams, distance):
+    """Ranges with an object `distance` m in front of `scan` across `beams` beams: what the
+    scan would see had a person (or a door) stood there on that visit only."""
+    log, _ = intel
+    ranges = log.ranges[:SCANS].copy()
+    ranges[scan, first_beam:first_beam + beams] = distance
+    return ranges
+
+
+def _pairs_of(assessment, scan):
+    pairs = assessment.result.pairs[assessment.explained_pairs]
+    return (pairs[:, 0] == scan) | (pairs[:, 1] == scan)
+
+
+def test_the_corrected_map_passes_with_its_changes_reported(corrected):
+    assert not corrected.result.consistent  # the paper's test flags it
+    assert corrected.consistent
+    counts = corrected.class_counts()
+    assert counts['change'] > counts['misaligned']
+    assert corrected.changes and all(place.points > 0 for place in corrected.changes)
+    assert corrected.summary_line().startswith('CONSISTENT: no misalignment above 0.10 m; ')
+
+
+@pytest.mark.parametrize('name,first_beam,beams,distance', [
+    ('person', 0, 20, 1.1),  # a body 1.1 m to the right: about 0.4 m wide
+    ('door', 40, 45, 1.6),  # a panel 1.6 m ahead across 45 degrees: about 1.2 m wide
+])
+def test_an_object_on_one_visit_is_a_change(intel, corrected, name, first_beam, beams, distance):
+    scan = 250  # the robot comes back to where scans 0-40 saw open space
+    ranges = _obstacle(intel, scan, first_beam, beams, distance)
+    assessment = check_map(_map(intel, ranges=ranges))
+    involved = _pairs_of(assessment, scan)
+    assert involved.any(), f'the {name} makes pairs of scan {scan} fail'
+    classes = [PAIR_CLASSES[code] for code in assessment.pair_classes[involved]]
+    assert MISALIGNED not in classes and UNREGISTERED not in classes, classes
+    assert classes.count(CHANGE) >= 0.5 * len(classes), classes
+    assert assessment.consistent
+    # The object is a changed place where it stood.
+    scans = _map(intel, ranges=ranges)
+    outline = scans.endpoints[scan, first_beam:first_beam + beams]
+    nearest = min(np.hypot(*(outline - (place.x, place.y)).T).min()
+                  for place in assessment.changes if scan in place.scans)
+    assert nearest < 0.3
+
+
+def test_a_one_degree_rotation_is_a_misalignment(intel):
+    log, _ = intel
+    poses = displace(log.laser_poses[:SCANS], 150, SCANS, np.radians(1.0), np.zeros(2))
+    assessment = check_map(_map(intel, poses=poses))
+    assert not assessment.consistent
+    assert assessment.summary_line().startswith('INCONSISTENT: 1 misaligned region')
+    (region,) = assessment.misalignments
+    assert region.registered
+    # The later side moved, against the scans before the seam it revisits.
+    assert region.scans.min() >= 150 and (region.reference_scans < 150).mean() > 0.95
+    # The correction turns the displaced stretch back by the degree it was turned.
+    assert np.degrees(region.correction[2]) == pytest.approx(-1.0, abs=0.25)
+    assert region.displacement > assessment.settings.misalignment_tolerance
+    assert np.isfinite(region.correction_std).all() and (region.correction_std < 0.05).all()
+    counts = assessment.class_counts()
+    assert counts[MISALIGNED] > counts[CHANGE]
+
+
+@pytest.mark.parametrize('shift', [1.5, 3.0])
+def test_a_gross_error_is_never_a_change(intel, shift):
+    log, _ = intel
+    poses = displace(log.laser_poses[:SCANS], 150, SCANS, 0.0, np.array([shift, 0.0]))
+    assessment = check_map(_map(intel, poses=poses))
+    assert not assessment.consistent
+    moved = np.concatenate([region.scans for region in assessment.misalignments])
+    assert (moved >= 150).mean() > 0.9
+
+
+def test_a_small_error_within_the_tolerance_passes(intel):
+    log, _ = intel
+    poses = displace(log.laser_poses[:SCANS], 150, SCANS, 0.0, np.array([0.03, 0.0]))
+    assert check_map(_map(intel, poses=poses)).consistent
+
+
+def test_a_map_that_passes_the_paper_test_is_not_explained(room_log):
+    path, _, _ = room_log()
+    log = carmen.read_carmen_log(path)
+    scans = ScanSet.from_ranges(log.ranges, log.laser_poses, carmen.sensor_model(log))
+    result = check_consistency(scans)
+    assert result.consistent
+    assessment = explain(scans, result)
+    assert assessment.consistent and assessment.explained_pairs.size == 0
+    assert assessment.summary_line() == ('CONSISTENT: no misalignment above 0.10 m; '
+                                         '0 changed places (people, moved objects)')
+
+
+def test_strict_keeps_the_paper_verdict(intel, corrected):
+    strict = explain(_map(intel), corrected.result, ExplanationSettings(strict=True))
+    assert not strict.consistent
+    assert np.array_equal(strict.flagged, corrected.result.inconsistent)
+    assert 'scans fail the paper\'s test (strict verdict)' in strict.summary_line()
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match='misalignment_tolerance'):
+        ExplanationSettings(misalignment_tolerance=-1.0)
+    with pytest.raises(ValueError, match='gross_fraction'):
+        ExplanationSettings(gross_fraction=1.0)
+    with pytest.raises(ValueError, match='scans for a result'):
+        explain(ScanSet.from_ranges(np.ones((2, 4)), np.zeros((2, 3)),
+                                    carmen.SensorModel(-1.0, 0.5, 8.0)),
+                check_consistency(ScanSet.from_ranges(np.ones((3, 4)), np.zeros((3, 3)),
+                                                      carmen.SensorModel(-1.0, 0.5, 8.0))))
+
+
+def test_a_cache_gives_the_same_assessment_and_registers_only_what_changed(intel, corrected):
+    log, _ = intel
+    cache = RegistrationCache()
+    first = explain(_map(intel), corrected.result, cache=cache)
+    registered = len(cache)
+    assert registered > 0
+    assert first.summary_line() == corrected.summary_line()
+    assert np.array_equal(first.pair_classes, corrected.pair_classes)
+    # The same map again: nothing new to register.
+    explain(_map(intel), corrected.result, cache=cache)
+    assert len(cache) == registered
+    # A loop closure moves the last scans: only the submaps holding them are registered again.
+    poses = displace(log.laser_poses[:SCANS], 280, SCANS, 0.0, np.array([0.2, 0.0]))
+    moved = _map(intel, poses=poses)
+    again = explain(moved, check_consistency(moved), cache=cache)
+    assert registered < len(cache) < 2 * registered
+    fresh = explain(moved, again.result)
+    assert again.summary_line() == fresh.summary_line()

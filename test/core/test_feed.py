@@ -1,0 +1,158 @@
+"""The feed from input records to the monitor: the node's and replay's one path."""
+import math
+
+import numpy as np
+import pytest
+
+from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.feed import (RESET_CONFIRMATIONS, FeedSettings, MonitorFeed,
+                                           PoseKeyframer, ScanGaps)
+from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+
+MODEL = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 179, max_range=81.83)
+SCANS = 60
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    return (log.timestamps[:SCANS], log.ranges[:SCANS], log.laser_poses[:SCANS],
+            sensor_model(log))
+
+
+def _scan_records(stamps, ranges, model):
+    return [Scan(stamp=float(t), ranges=r, model=model) for t, r in zip(stamps, ranges)]
+
+
+def test_keyframe_estimates_give_the_batch_verdict(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed()
+    for index, scan in enumerate(_scan_records(stamps, ranges, model)):
+        assert feed.apply(scan).warnings == ()
+        applied = feed.apply(KeyframeEstimate(stamps=stamps[:index + 1], poses=poses[:index + 1]))
+        assert applied.summary is not None and applied.summary.new_keyframes == 1
+    oracle = check_consistency(ScanSet.from_ranges(ranges, poses, model))
+    result = feed.monitor.snapshot().result
+    np.testing.assert_array_equal(result.inconsistent, oracle.inconsistent)
+    assert result.failed_pair_count == oracle.failed_pair_count
+
+
+def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(settings=FeedSettings(pose_source='odometry', keyframe_distance=0.3,
+                                             keyframe_angle=0.2))
+    scans = _scan_records(stamps, ranges, model)
+    for scan, stamp, pose in zip(scans, stamps, poses):
+        feed.apply(scan)
+        feed.apply(PoseSample(stamp=float(stamp), pose=pose))
+    keyframes = feed.monitor.keyframe_count
+    assert 1 < keyframes < SCANS  # the robot does not move 0.3 m between every scan
+    np.testing.assert_allclose(feed.monitor.snapshot().poses, np.array(feed.keyframer.poses))
+    refused = feed.apply(KeyframeEstimate(stamps=stamps, poses=poses))
+    assert refused.summary is None and "pose_source is 'odometry'" in refused.warnings[0]
+
+
+@pytest.mark.parametrize('pose, problem', [
+    ([math.nan, 0.0, 0.0], 'non-finite'), ([1e300, 0.0, 0.0], 'beyond max_pose_extent'),
+    ([0.0, 0.0, math.nan], 'unusable quaternion')])
+def test_absurd_single_poses_are_skipped_with_a_warning(pose, problem):
+    feed = MonitorFeed(settings=FeedSettings(pose_source='pose'))
+    applied = feed.apply(PoseSample(stamp=1.0, pose=np.array(pose)))
+    assert applied.summary is None and problem in applied.warnings[0]
+
+
+def test_absurd_keyframe_poses_are_skipped_with_a_warning(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(monitor_settings=MonitorSettings(max_pose_extent=1000.0))
+    for scan in _scan_records(stamps[:3], ranges[:3], model):
+        feed.apply(scan)
+    bad = poses[:3].copy()
+    bad[1, 0] = 1e300
+    bad[2, 2] = math.nan  # an infinite quaternion component gives no heading
+    applied = feed.apply(KeyframeEstimate(stamps=stamps[:3], poses=bad))
+    assert feed.monitor.keyframe_count == 1
+    assert any('beyond max_pose_extent = 1000 m' in w for w in applied.warnings)
+    assert any('non-finite' in w for w in applied.warnings)
+
+
+def test_a_stamp_jump_resets_only_when_confirmed(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed()
+    scans = _scan_records(stamps, ranges, model)
+    for index, scan in enumerate(scans[:20]):
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps[:20], poses=poses[:20]))
+    assert feed.monitor.keyframe_count == 20
+    # one stray old stamp is held, then skipped when the session goes on
+    stray = Scan(stamp=float(stamps[0]) - 100.0, ranges=ranges[0], model=model)
+    assert feed.apply(stray).warnings == ()
+    assert 'skipped: stamped more than reset_stamp_jump' in feed.apply(scans[20]).warnings[0]
+    assert feed.resets == 0 and feed.monitor.keyframe_count == 20
+    # the same session again (a restarted SLAM stack, a looped bag): a reset, scans kept
+    for scan in scans[:RESET_CONFIRMATIONS - 1]:
+        assert feed.apply(scan).reset == ''
+    applied = feed.apply(scans[RESET_CONFIRMATIONS - 1])
+    assert 'jumped back' in applied.reset and feed.resets == 1
+    feed.apply(KeyframeEstimate(stamps=stamps[:RESET_CONFIRMATIONS],
+                                poses=poses[:RESET_CONFIRMATIONS]))
+    assert feed.monitor.keyframe_count == RESET_CONFIRMATIONS
+
+
+def test_constraints_and_bad_constraints():
+    feed = MonitorFeed()
+    assert feed.apply(Constraints(rows=np.zeros((0, 11)))).warnings == ()
+    rows = np.array([[1.0, 2.0, 0.1, 0.0, 0.0, 1e300, 0.0, 0.0, 1.0, 0.0, 1.0]])
+    assert 'beyond 1e+12' in feed.apply(Constraints(rows=rows)).warnings[0]
+
+
+def test_stamp_gaps_count_missing_scans():
+    gaps = ScanGaps()
+    for stamp in np.arange(20) * 0.025:
+        assert gaps.add(float(stamp)) == 0
+    assert gaps.add(0.475 + 4 * 0.025) == 3  # three scans of a 40 Hz driver never came
+    assert gaps.missing == 3
+
+
+def _sample(stamp, pose):
+    return PoseSample(stamp=stamp, pose=np.asarray(pose, dtype=float), frame_id='odom',
+                      child_frame_id='base_link')
+
+
+def _scan(stamp):
+    return Scan(stamp=stamp, ranges=np.ones(3, dtype=np.float32), model=MODEL, frame_id='laser')
+
+
+def test_odometry_keyframes_interpolate_and_select():
+    keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
+    keyframes.add_scan(_scan(0.5))  # before any pose: cannot be placed
+    assert keyframes.add_pose(_sample(1.0, [1.0, 2.0, math.pi / 2])) == []
+    assert keyframes.dropped == 1
+    for stamp in (1.5, 2.0, 2.5, 3.5):
+        keyframes.add_scan(_scan(stamp))
+    # From (1, 2, pi/2) the robot moves 2 m forward and turns 0.4 rad by t = 3.
+    placed = keyframes.add_pose(_sample(3.0, [1.0, 4.0, math.pi / 2 + 0.4]))
+    # t = 1.5: a quarter of the step, (0.5 m, 0.1 rad) in the start frame -> first keyframe.
+    # t = 2.0: 0.5 m and 0.1 rad further: below both thresholds. t = 2.5: 1 m further.
+    # t = 3.5 waits for a later pose.
+    assert [scan.stamp for scan in placed] == [1.5, 2.5]
+    np.testing.assert_allclose(keyframes.poses, [[1.0, 2.5, math.pi / 2 + 0.1],
+                                                 [1.0, 3.5, math.pi / 2 + 0.3]], atol=1e-12)
+    assert keyframes.stamps == [1.5, 2.5]
+    assert [scan.stamp for scan in keyframes.add_pose(_sample(4.0, [1.0, 6.0, 2.0]))] == [3.5]
+
+
+def test_odometry_keyframes_turning_in_place_and_exact_stamps():
+    keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
+    keyframes.add_pose(_sample(0.0, [1.0, 1.0, 3.0]))
+    keyframes.add_scan(_scan(0.0))
+    keyframes.add_scan(_scan(1.0))
+    placed = keyframes.add_pose(_sample(1.0, [1.0, 1.0, -2.7]))  # wraps through pi: +0.583 rad
+    assert [scan.stamp for scan in placed] == [0.0, 1.0]
+    np.testing.assert_allclose(keyframes.poses[1], [1.0, 1.0, -2.7])
+    with pytest.raises(ValueError):
+        PoseKeyframer(min_distance=-1.0, min_angle=0.1)
+
+

@@ -1,0 +1,91 @@
+"""Point-to-line registration of submaps of real Intel scans."""
+import numpy as np
+import pytest
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
+                                                   surface_points)
+from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.io import carmen
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    return carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+
+
+def _scans(log, indices, poses=None, max_range=8.0):
+    model = carmen.sensor_model(log, max_range=max_range)
+    poses = log.laser_poses[indices] if poses is None else poses
+    return ScanSet.from_ranges(log.ranges[indices], poses, model)
+
+
+def _about(centre, shift, degrees):
+    """The world transform turning by `degrees` about `centre`, then moving by `shift`."""
+    theta = np.radians(degrees)
+    rotation = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    return np.array([*(centre + np.asarray(shift) - rotation @ centre), theta])
+
+
+@pytest.mark.parametrize('start', [240, 800])
+@pytest.mark.parametrize('offset', [(0.2, -0.1, 2.0), (-0.35, 0.0, 0.0), (0.0, 0.05, -4.0)])
+def test_a_known_offset_between_two_visits_is_recovered(intel, start, offset):
+    # Eleven scans against eleven overlapping later ones, those turned about their centre and
+    # moved; both stretches lie in rooms, whose walls fix every direction.
+    reference, query = np.arange(start, start + 11), np.arange(start + 4, start + 15)
+    centre = intel.laser_poses[query, :2].mean(axis=0)
+    transform = _about(centre, offset[:2], offset[2])
+    moved = se2.compose(np.broadcast_to(transform, (11, 3)), intel.laser_poses[query])
+    poses = np.vstack([intel.laser_poses[reference], moved])
+    scans = _scans(intel, np.r_[reference, query], poses)
+    found = register_submaps(surface_points(scans.endpoints, scans.valid),
+                             np.array([[0, 11, 11, 22]]))
+    assert found.determined[0]
+    undo = found.world_transforms()[0]
+    # The correction undoes the displacement: applied after it, the query is back in place.
+    back = se2.compose(undo, se2.compose(transform, intel.laser_poses[query]))
+    assert np.abs(back[:, :2] - intel.laser_poses[query][:, :2]).max() < 0.02
+    assert np.abs(se2.wrap_angle(back[:, 2] - intel.laser_poses[query][:, 2])).max() < 0.003
+
+
+def test_outliers_are_trimmed(intel):
+    # A third of the query's beams replaced by clutter in the free space: the fit holds.
+    reference, query = np.arange(100, 111), np.arange(104, 115)
+    ranges = intel.ranges[np.r_[reference, query]].copy()
+    rng = np.random.default_rng(3)
+    clutter = rng.random(ranges[11:].shape) < 0.33
+    ranges[11:][clutter] *= rng.uniform(0.3, 0.9, clutter.sum())
+    model = carmen.sensor_model(intel, max_range=8.0)
+    scans = ScanSet.from_ranges(ranges, intel.laser_poses[np.r_[reference, query]], model)
+    found = register_submaps(surface_points(scans.endpoints, scans.valid),
+                             np.array([[0, 11, 11, 22]]))
+    assert found.determined[0]
+    assert np.hypot(*found.corrections[0, :2]) < 0.02
+    assert abs(np.degrees(found.corrections[0, 2])) < 0.3
+
+
+def test_a_corridor_leaves_the_slide_along_it_uncertain(intel):
+    # Down and up the corridor at x = -5.9 m, seeing only its side walls (1.5 m range).
+    reference, query = np.array([693, 694, 695, 696]), np.array([864, 865, 873, 874, 875])
+    along, across = np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    ratios = {}
+    for max_range in (1.5, 8.0):
+        scans = _scans(intel, np.r_[reference, query], max_range=max_range)
+        found = register_submaps(surface_points(scans.endpoints, scans.valid),
+                                 np.array([[0, 4, 4, 9]]))
+        covariance = found.covariances[0, :2, :2]
+        ratios[max_range] = np.sqrt((along @ covariance @ along) / (across @ covariance @ across))
+    assert ratios[1.5] > 4.0  # the walls fix the robot across the corridor, not along it
+    assert ratios[8.0] < 0.5 * ratios[1.5]  # the corridor's doors and ends fix it along too
+
+
+def test_undetermined_and_bad_tasks(intel):
+    scans = _scans(intel, np.arange(100, 104))
+    surfaces = surface_points(scans.endpoints, scans.valid)
+    found = register_submaps(surfaces, np.zeros((0, 4), dtype=np.int64))
+    assert found.corrections.shape == (0, 3)
+    for task in ([0, 0, 1, 2], [0, 1, 2, 5], [-1, 1, 2, 3]):
+        with pytest.raises(ValueError, match='registration tasks'):
+            register_submaps(surfaces, np.array([task]))
+    with pytest.raises(ValueError, match='gates must shrink'):
+        RegistrationSettings(gates=(0.1, 0.5))

@@ -1,0 +1,212 @@
+"""The node as a process: parameter errors, unknown names, shutdown in every state.
+
+Each test starts its own node process (what is tested is the process: its exit code, its
+output, how it ends).
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path as FilePath
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from map_consistency_ros.core import se2
+from map_consistency_ros.io import messages
+from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+from map_consistency_ros.ros.conversions import message_class
+
+REPO = FilePath(__file__).resolve().parents[2]
+SCANS = 80
+TIMEOUT = 30.0
+
+
+@pytest.fixture()
+def ros_env(tmp_path, monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 200)))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path / 'ros_log'))
+    return dict(os.environ)
+
+
+def _node(ros_env, *arguments: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
+                             *arguments], cwd=REPO, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def _params(tmp_path, text: str) -> str:
+    path = tmp_path / 'params.yaml'
+    path.write_text('/**:\n  ros__parameters:\n' + text)
+    return str(path)
+
+
+@pytest.mark.parametrize('text, expected', [
+    ('    alpha: "0.01"\n', "alpha: expected a float, got a string '0.01'"),
+    ('    min_points: 2.5\n', 'min_points: expected an integer, got a float 2.5'),
+    ('    alpha: 0.7\n', 'alpha: 0.7 is outside [1e-09, 0.5]'),
+    ('    pose_source: tf\n', "pose_source: 'tf' is not one of path"),
+])
+def test_a_bad_parameter_ends_the_node_with_one_line(ros_env, tmp_path, text, expected):
+    process = _node(ros_env, '--params-file', _params(tmp_path, text))
+    output, _ = process.communicate(timeout=60)
+    assert process.returncode == 2
+    assert output.strip().count('\n') == 0 and 'Traceback' not in output
+    assert expected in output and output.startswith('map_consistency: bad parameter:')
+
+
+def _wait_for_line(process: subprocess.Popen, words: str) -> list[str]:
+    lines = []
+    deadline = time.monotonic() + TIMEOUT
+    while time.monotonic() < deadline:
+        line = process.stdout.readline()
+        lines.append(line)
+        if words in line:
+            return lines
+    raise AssertionError(f'no line with {words!r} in {lines}')
+
+
+def _stop(process: subprocess.Popen) -> tuple[float, str]:
+    """SIGINT; seconds until the process ended and the rest of its output."""
+    start = time.monotonic()
+    process.send_signal(signal.SIGINT)
+    output, _ = process.communicate(timeout=20)
+    return time.monotonic() - start, output
+
+
+def test_integers_for_floats_and_a_warning_for_unknown_names(ros_env, tmp_path):
+    process = _node(ros_env, '--params-file',
+                    _params(tmp_path, '    max_range: 8\n    alpah: 0.02\n'),
+                    '-p', 'stale_timout:=3.0')
+    lines = _wait_for_line(process, "unknown parameter 'stale_timout' ignored; "
+                                    'did you mean stale_timeout?')
+    assert any("unknown parameter 'alpah' ignored; did you mean alpha?" in line
+               for line in lines)
+    _, output = _stop(process)
+    assert process.returncode == 0 and 'Traceback' not in output
+
+
+class Client:
+    """A test-side node spinning in a thread."""
+
+    def __init__(self) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node('client', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+        self.thread.join(timeout=5)
+
+
+def test_sigint_when_idle_ends_cleanly(ros_env):
+    process = _node(ros_env)
+    client = Client()
+    try:
+        check = client.node.create_client(Trigger, '/map_consistency/check')
+        assert check.wait_for_service(timeout_sec=TIMEOUT)
+        seconds, output = _stop(process)
+    finally:
+        client.close()
+    assert process.returncode == 0 and 'Traceback' not in output
+    assert seconds < 10.0, output  # bench/bench_node_load.py measures it
+
+
+def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
+    process = _node(ros_env, '-p', 'grid_steps:=400')  # a long search
+    client = Client()
+    try:
+        node = client.node
+        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
+        path = node.create_publisher(message_class(messages.PATH_TYPE), 'trajectory', 10)
+        constraints = node.create_publisher(message_class(messages.CONSTRAINTS_TYPE),
+                                            'constraints', 10)
+        retune = node.create_client(Trigger, '/map_consistency/retune_dcs')
+        assert retune.wait_for_service(timeout_sec=TIMEOUT)
+        stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+        for index in range(SCANS):
+            scan.publish(messages.scan_message(message_class, stamps[index], log.ranges[index],
+                                               model))
+            time.sleep(0.004)
+        path.publish(messages.path_message(message_class, stamps, poses, 'map'))
+        information = [100.0, 0.0, 0.0, 100.0, 0.0, 400.0]
+        rows = [[stamps[k], stamps[k + 1], *se2.relative(poses[k], poses[k + 1]), *information]
+                for k in range(SCANS - 1)]
+        rows.append([stamps[10], stamps[70], *se2.relative(poses[10], poses[70]), *information])
+        constraints.publish(messages.constraints_message(message_class, np.array(rows)))
+        time.sleep(1.0)  # the worker takes the graph
+        future = retune.call_async(Trigger.Request())
+        time.sleep(1.5)  # well into the search
+        assert not future.done(), 'the retune ended before the signal'
+        seconds, output = _stop(process)
+        deadline = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert future.done(), 'the pending retune was never answered'
+        response = future.result()
+    finally:
+        client.close()
+    assert not response.success and response.message == 'the node is shutting down'
+    assert process.returncode == 0 and 'Traceback' not in output
+    assert seconds < 10.0, output  # bench/bench_node_load.py measures it
+
+
+def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
+    """With use_sim_time, a paused bag (a /clock that stops) is not stale input."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rosgraph_msgs.msg import Clock
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    process = _node(ros_env, '-p', 'use_sim_time:=true', '-p', 'stale_timeout:=1.0',
+                    '-p', 'diagnostics_period:=0.2')
+    client = Client()
+    statuses: list = []
+    try:
+        node = client.node
+        node.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda m: statuses.extend(m.status), 10)
+        clock = node.create_publisher(Clock, '/clock', 10)
+        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
+        deadline = time.monotonic() + TIMEOUT
+        while not statuses and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+        def tick(seconds: float) -> None:
+            clock.publish(Clock(clock=messages.time_message(message_class, seconds)))
+
+        for _ in range(10):  # the node's clock subscription matches at its own pace
+            tick(100.0)
+            time.sleep(0.1)
+        scan.publish(messages.scan_message(message_class, 100.0, log.ranges[0],
+                                           sensor_model(log)))
+        time.sleep(2.5)  # wall time passes, the bag is paused
+        assert statuses[-1].level != DiagnosticStatus.STALE, statuses[-1].message
+        tick(103.0)  # the bag plays on without input
+        deadline = time.monotonic() + TIMEOUT
+        while statuses[-1].level != DiagnosticStatus.STALE and time.monotonic() < deadline:
+            time.sleep(0.05)
+            tick(103.0)
+        assert statuses[-1].message == 'no input for 3.0 s (stale after 1 s)'
+        _stop(process)
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
