@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import options, plots, report
+from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.explanation import Assessment, check_map
 from map_consistency_ros.core.scan_geometry import ScanSet
@@ -72,6 +72,9 @@ def load_scans(args: argparse.Namespace) -> tuple[carmen.CarmenLog, np.ndarray, 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
                   details: dict, scan_ids: np.ndarray | None = None) -> None:
     """The report, figure and pairs CSV the user asked for."""
+    if args.plot or args.explain:
+        # matplotlib costs half a second of start-up: only the runs that draw pay it.
+        from map_consistency_ros.cli import plots
     if args.report:
         write = report.assessment_report(assessment, scan_ids)
         write.update(details)
@@ -97,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
     log, selected, scans = load_scans(args)
     started = time.perf_counter()
     with ProgressBar('checking pairs', enabled=not args.quiet) as progress:
-        assessment = check_map(scans, parameters, explanation, progress=progress)
+        # Without a bar the pairs go to the kernel in one piece, not in chunks.
+        assessment = check_map(scans, parameters, explanation,
+                               progress=None if args.quiet else progress)
     elapsed = time.perf_counter() - started
     print(report.format_summary(assessment, str(args.log), selected))
     print(f'  test time             {elapsed:.2f} s')

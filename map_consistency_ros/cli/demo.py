@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     arguments = ['replay', str(demo_bag_path()), '--report', str(out / 'report.json'),
                  '--plot', str(out / 'map.png'), '--stats-plot', str(out / 'psi.png'),
                  '--pairs-csv', str(out / 'pairs.csv')]
-    replay_args = cli_main.build_parser().parse_args(arguments + (['--quiet'] if args.quiet
+    replay_args = cli_main.build_parser('replay').parse_args(arguments + (['--quiet'] if args.quiet
                                                                   else []))
     corrected, monitor = replay.replay_and_report(replay_args)
     broken = break_map(monitor, out, replay_args)

@@ -3,6 +3,8 @@
 Each subcommand lives in its own module of this package with `add_arguments(parser)` and
 `run(args) -> int`. Exit codes: 0 consistent (or success), 1 inconsistent, 2 bad input.
 """
+from __future__ import annotations
+
 import argparse
 import importlib
 import sys
@@ -30,7 +32,9 @@ def _version() -> str:
         return 'unknown (not installed)'
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or only `command`'s options with the others listed: their
+    modules (numpy, numba, scipy, matplotlib, rosbags behind them) are then not imported."""
     parser = argparse.ArgumentParser(
         prog='map-consistency',
         description=__doc__.split('\n\n')[0],
@@ -42,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
+        if command is not None and name != command:
+            commands.add_parser(name, help=help_text)
+            continue
         module = importlib.import_module(f'map_consistency_ros.cli.{module_name}')
         sub = commands.add_parser(name, help=help_text, description=module.__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -50,8 +57,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_of(argv: list[str]) -> str:
+    """The subcommand named on the command line ('' for none: only the overview is needed)."""
+    return next((argument for argument in argv if not argument.startswith('-')), '')
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command_of(argv)).parse_args(argv)
     try:
         return args.run(args)
     except InputError as error:

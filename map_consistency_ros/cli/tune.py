@@ -23,10 +23,11 @@ import argparse
 import time
 from pathlib import Path
 
-from map_consistency_ros.cli import options, plots, report
+from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import Assessment, explain
+from map_consistency_ros.core.parameters import settings_from_values
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningResult, TuningSettings,
                                              tune_dcs)
@@ -34,10 +35,7 @@ from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
 
-plt = plots.plt  # pyplot with the backend plots chose
-
 EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
-_DEFAULTS = TuningSettings()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,18 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--stride', type=int, default=1, help='keep every STRIDE-th scan')
     build.add_argument('--seed', type=int, default=0, help='random seed (default %(default)s)')
     build.add_argument('--save-graph', type=Path, metavar='G2O', help='write the built graph')
-    search = parser.add_argument_group('search')
-    search.add_argument('--phi-min', type=float, default=_DEFAULTS.phi_min)
-    search.add_argument('--phi-max', type=float, default=_DEFAULTS.phi_max)
-    search.add_argument('--grid-steps', type=int, default=_DEFAULTS.grid_steps,
-                        help='grid points over sqrt(Phi) (default %(default)s)')
-    search.add_argument('--tolerance', type=float, default=_DEFAULTS.tolerance,
-                        help='width of the final Phi bracket (default %(default)s)')
-    search.add_argument('--linear-grid', action='store_true', help='grid evenly in Phi')
-    search.add_argument('--iterations', type=int, default=_DEFAULTS.iterations,
-                        help='DCS solver iterations per Phi (default %(default)s)')
-    search.add_argument('--workers', type=int, default=_DEFAULTS.workers,
-                        help='DCS solves run at once (0: one per CPU, at most 4)')
+    options.add_parameter_arguments(parser, TuningSettings, 'search')
     options.add_sensor_arguments(parser)
     options.add_test_arguments(parser)
     options.add_verdict_arguments(parser)
@@ -107,11 +94,8 @@ def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        settings = TuningSettings(
-            phi_min=args.phi_min, phi_max=args.phi_max, grid_steps=args.grid_steps,
-            tolerance=args.tolerance, sqrt_grid=not args.linear_grid,
-            iterations=args.iterations, workers=args.workers,
-            parameters=options.parameters_from_args(args))
+        settings = settings_from_values(TuningSettings, options.parameter_values(args),
+                                        parameters=options.parameters_from_args(args))
         explanation = options.explanation_from_args(args)
     except ValueError as error:
         raise InputError('options', str(error)) from None
@@ -185,7 +169,9 @@ def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorM
 
 def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
                   source: str) -> None:
-    figure, ax = plt.subplots(figsize=(5, 3.5))
+    # matplotlib costs half a second of start-up: only the runs that draw pay it.
+    from map_consistency_ros.cli import plots
+    figure, ax = plots.plt.subplots(figsize=(5, 3.5))
     ax.plot(result.profile_phi, result.profile_value, '.-', lw=0.8, ms=3, c='tab:blue')
     ax.axvline(result.phi, c='red', lw=1, label=f'Phi* = {result.phi:.4g}')
     ax.set_xscale('function', functions=(lambda x: x ** 0.5, lambda x: x ** 2))
@@ -200,7 +186,8 @@ def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
 
 def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses,
                baseline_test: Assessment, result: TuningResult, tuned: Assessment) -> None:
-    figure, axes = plt.subplots(1, 2, figsize=(14, 7))
+    from map_consistency_ros.cli import plots
+    figure, axes = plots.plt.subplots(1, 2, figsize=(14, 7))
     plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
     plots.plot_map(axes[1], profile.scans_at(result.poses), tuned, f'Phi* = {result.phi:.4g}')
     plots.save_figure(figure, path)

@@ -78,14 +78,6 @@ def _edge_distance2(ends: np.ndarray, sx: float, sy: float, full_circle: bool, e
 
 
 @numba.njit(cache=True)
-def _all_edges_distance2(ends: np.ndarray, sx: float, sy: float, full_circle: bool,
-                         best2: float, px: float, py: float) -> float:
-    for edge in range(ends.shape[0]):
-        best2 = min(best2, _edge_distance2(ends, sx, sy, full_circle, edge, px, py))
-    return best2
-
-
-@numba.njit(cache=True)
 def _rough_bearing(dx: float, dy: float) -> float:
     """atan2(dy, dx) within 1.2e-5 rad, several times cheaper than the exact one."""
     ax, ay = abs(dx), abs(dy)
@@ -136,7 +128,9 @@ def _star_distance(ends: np.ndarray, sx: float, sy: float, bearing: float, incre
     or (`rough`) within 1.2e-5 rad. Wedge m spans the bearings [m, m + 1) * increment; the last
     wedge closes the circle. A rough bearing picks p's wedge, cross products with the wedge's
     two beams settle it exactly. An edge in a wedge an angle g away from p's bearing is at least
-    rho * sin(g) from p, so the outward scan stops once g exceeds asin(best / rho).
+    rho * sin(g) from p, so the outward scan stops once g exceeds asin(best / rho); while best
+    is not below rho (p near the sensor) the window is the whole circle, and shrinks as soon as
+    a closer edge turns up.
     """
     beams = ends.shape[0]
     last = beams - 1
@@ -163,8 +157,6 @@ def _star_distance(ends: np.ndarray, sx: float, sy: float, bearing: float, incre
         return 0.0
     best2 = _segment_distance2(px, py, ax, ay, bx, by)
     rho2 = dx * dx + dy * dy
-    if best2 >= rho2:
-        return math.sqrt(_all_edges_distance2(ends, sx, sy, full_circle, best2, px, py))
     window = _window_bound(best2, rho2)
     left, right = wedge, wedge
     left_angle, right_angle = low_angle, high_angle

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 
+import numba
 import numpy as np
 
 
@@ -38,23 +39,51 @@ def _as_pairs(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     return np.stack([keys // span, keys % span], axis=1)
 
 
+@numba.njit(cache=True)
+def _sweep(extents: np.ndarray, order: np.ndarray, place: bool, slots: np.ndarray,
+           pairs: np.ndarray) -> None:
+    """Visit each overlapping pair (low, high) once, sweeping the boxes in `order` (by xmin).
+
+    Without `place`, count the pairs of each low index into slots[low + 1]; with it, store the
+    pair in row slots[low] of `pairs` and advance that slot.
+    """
+    for rank in range(order.shape[0]):
+        a = order[rank]
+        for b in order[rank + 1:]:
+            if extents[b, 0] > extents[a, 2]:
+                break
+            if (extents[a, 1] <= extents[b, 3] and extents[b, 1] <= extents[a, 3]
+                    and extents[a, 0] <= extents[b, 2]):
+                low, high = min(a, b), max(a, b)
+                if place:
+                    pairs[slots[low], 0], pairs[slots[low], 1] = low, high
+                    slots[low] += 1
+                else:
+                    slots[low + 1] += 1
+
+
+@numba.njit(cache=True)
+def _sweep_pairs(extents: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Overlapping pairs (i < j), rows sorted: counted, then placed by i, then sorted by j
+    within each i (cheaper than a global sort of all pairs)."""
+    count = order.shape[0]
+    starts = np.zeros(count + 1, dtype=np.int64)
+    _sweep(extents, order, False, starts, np.empty((0, 2), dtype=np.int64))
+    starts = np.cumsum(starts)
+    pairs = np.empty((starts[count], 2), dtype=np.int64)
+    _sweep(extents, order, True, starts[:count].copy(), pairs)
+    for low in range(count):
+        pairs[starts[low]:starts[low + 1], 1].sort()
+    return pairs
+
+
 def candidate_pairs(extents: np.ndarray) -> np.ndarray:
     """All pairs (i, j), i < j, of boxes (N, 4) that overlap, as a sorted (P, 2) int64 array.
 
     Sort and sweep along x: each box meets the boxes that start within its x interval.
     """
     extents = _checked_extents(extents)
-    order = np.argsort(extents[:, 0], kind='stable')
-    starts = extents[order, 0]
-    stops = np.searchsorted(starts, extents[order, 2], side='right')
-    rank = np.arange(len(order))
-    reach = np.maximum(stops - rank - 1, 0)
-    first = np.repeat(rank, reach)
-    offsets = np.arange(first.size) - np.repeat(np.cumsum(reach) - reach, reach)
-    second = first + 1 + offsets
-    first, second = order[first], order[second]
-    keep = extents_overlap(extents[first], extents[second])
-    return _as_pairs(first[keep], second[keep])
+    return _sweep_pairs(extents, np.argsort(extents[:, 0], kind='stable'))
 
 
 class ScanExtentIndex:

@@ -4,8 +4,9 @@ M(Phi), the average inconsistency of a DCS solution (eq. 11), is the mean pairwi
 M_ij over the scan pairs whose polygons overlap, with the scans placed at the poses DCS finds
 with parameter Phi from the graph's initial guess. Phi* = argmin M(Phi) (eq. 12) is searched
 over sqrt(Phi) (Phi is a squared quantity): a grid, then golden-section refinement around the
-best grid point until the Phi bracket is narrower than the tolerance. The statistical test
-then says whether even the map at Phi* is consistent, its local scales fitted on the
+best grid point until the Phi bracket is narrower than the tolerance or the profile is flat
+there (its two inner values within `flat_tolerance` of each other). The statistical test then
+says whether even the map at Phi* is consistent, its local scales fitted on the
 incremental solution (the odometry chain).
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   average_inconsistency, check_consistency)
 from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
-from map_consistency_ros.core.measure import pair_measures
+from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
@@ -38,7 +39,16 @@ class TuningSettings:
 
     `sqrt_grid` spaces the grid evenly in sqrt(Phi), otherwise in Phi. `workers` DCS solves
     run at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
-    size, so memory is rarely the limit.
+    size, so memory is rarely the limit. `flat_tolerance`: the golden section stops once its two
+    inner M values differ by less than this fraction of them (the profile is flat within its
+    noise there; 0 refines to `tolerance`). `reuse_tolerance` (metres): a pair's M_ij is reused
+    from the map it was last measured on while its scans' relative pose moves every end point by
+    at most this much, which bounds the change of M_ij by the pair's valid end points times it
+    (0: only unmoved pairs are reused). Each solve stops, as GTSAM's, once a step lowers the cost
+    by less than `relative_tolerance` of it (the search needs M to 1e-3, not the poses to
+    1e-10 m), and starts with damping `initial_damping` times the largest diagonal entry of the
+    normal equations (about GTSAM's absolute 1e-5 on these graphs; the solver's default 1e-6
+    takes twice the iterations).
     """
 
     phi_min: float = parameter(1e-6, 'smallest DCS Phi of the search', '', (1e-12, 1e6))
@@ -49,6 +59,18 @@ class TuningSettings:
     sqrt_grid: bool = parameter(True, 'space the grid evenly in sqrt(Phi), else in Phi')
     iterations: int = parameter(50, 'solver iterations per DCS solve', '', (1, 10_000))
     workers: int = parameter(0, 'DCS solves at once (0: one per CPU, at most 4)', '', (0, 64))
+    flat_tolerance: float = parameter(
+        1e-3, 'the golden section stops once its inner M values differ by less than this '
+        'fraction (0: refine to tolerance)', '', (0.0, 1.0))
+    reuse_tolerance: float = parameter(
+        1e-4, "a pair's M_ij is reused while its scans' relative pose moves no end point "
+        'further than this', 'm', (0.0, 1.0))
+    relative_tolerance: float = parameter(
+        1e-10, 'a DCS solve stops once a step lowers the cost by less than this fraction', '',
+        (0.0, 1.0))
+    initial_damping: float = parameter(
+        1e-9, "a DCS solve's first damping, times the largest normal-equation diagonal", '',
+        (1e-16, 1.0))
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:
@@ -58,6 +80,11 @@ class TuningSettings:
             raise ValueError(f'grid_steps must be at least 3, got {self.grid_steps}')
         if not self.tolerance > 0.0 or self.iterations < 1 or self.workers < 0:
             raise ValueError('tolerance must be positive, iterations >= 1 and workers >= 0')
+        if not min(self.flat_tolerance, self.reuse_tolerance, self.relative_tolerance) >= 0.0:
+            raise ValueError('flat_tolerance, reuse_tolerance and relative_tolerance must not be '
+                             'negative')
+        if not self.initial_damping > 0.0:
+            raise ValueError(f'initial_damping must be positive, got {self.initial_damping}')
 
     def grid(self) -> np.ndarray:
         """The Phi values of the grid, increasing."""
@@ -93,9 +120,11 @@ class TuningResult:
 class InconsistencyProfile:
     """Evaluates M(Phi) on one graph with its scans, caching every Phi evaluated.
 
-    Shared across evaluations: the sparsity analysis of the normal equations and the scans
-    (only their poses change). Every DCS solve starts from the graph's initial guess, so the
-    result of each Phi does not depend on the order of evaluation.
+    Shared across evaluations: the sparsity analysis and ordering of the normal equations, the
+    scans (only their poses change) and the pair measures of the maps measured so far (pairs
+    whose relative pose stayed within `reuse_tolerance` are not measured again). Every DCS solve
+    starts from the graph's initial guess, so the solution at each Phi does not depend on the
+    order of evaluation.
     """
 
     def __init__(self, graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
@@ -107,6 +136,7 @@ class InconsistencyProfile:
         self.scans = ScanSet.from_ranges(ranges, self.sensor_poses(graph.poses), model)
         self._system = SparseSystem(graph)
         self._cache: dict[float, Evaluation] = {}
+        self._measured: _MeasuredPairs | None = None
 
     def sensor_poses(self, poses: np.ndarray) -> np.ndarray:
         """Laser poses (N, 3) of the vertices at `poses`."""
@@ -148,15 +178,63 @@ class InconsistencyProfile:
         return min(self._cache.values(), key=lambda item: (item.value, item.phi))
 
     def _solve(self, phi: float) -> OptimizationResult:
-        return optimize(self.graph, phi, iterations=self.settings.iterations,
-                        system=self._system)
+        settings = self.settings
+        return optimize(self.graph, phi, iterations=settings.iterations, system=self._system,
+                        relative_tolerance=settings.relative_tolerance,
+                        initial_damping=settings.initial_damping)
 
     def _value(self, result: OptimizationResult) -> float:
         if not (np.isfinite(result.cost) and np.all(np.isfinite(result.poses))):
             return math.inf
         scans = self.scans_at(result.poses)
-        measures = pair_measures(scans, candidate_pairs(scans.extents), keep_largest=1)
-        return average_inconsistency(measures)
+        self._measured = _measure_moved(scans, candidate_pairs(scans.extents), self._measured,
+                                        self.settings.reuse_tolerance)
+        return average_inconsistency(self._measured.measures)
+
+
+@dataclass(frozen=True)
+class _MeasuredPairs:
+    """Measures of sorted candidate pairs (P, 2), with the relative sensor pose (P, 3) of scan j
+    in scan i's frame at which each was measured."""
+
+    measures: PairMeasures
+    relative: np.ndarray
+
+
+def _measure_moved(scans: ScanSet, pairs: np.ndarray, previous: _MeasuredPairs | None,
+                   tolerance: float) -> _MeasuredPairs:
+    """The measures of `pairs` (sorted) on `scans`, measuring only the pairs that are new or
+    whose end points moved by more than `tolerance` relative to each other since `previous`.
+
+    With A = (t, theta) the pose of j's sensor in i's, an end point of j within range r of its
+    sensor moves in i's frame by at most |dt| + |dtheta| r, one of i by at most
+    |dt| + |dtheta| (|t| + r): the larger bound decides. Reused pairs keep the relative pose
+    they were measured at, so reuse never drifts.
+    """
+    poses = scans.sensor_poses
+    relative = se2.relative(poses[pairs[:, 0]], poses[pairs[:, 1]])
+    stale = np.ones(len(pairs), dtype=bool)
+    sums, counts = np.zeros(len(pairs)), np.zeros(len(pairs), dtype=np.int64)
+    if previous is not None and len(previous.measures.pairs) and len(pairs):
+        count = scans.scan_count
+        known = previous.measures.pairs[:, 0] * count + previous.measures.pairs[:, 1]
+        keys = pairs[:, 0] * count + pairs[:, 1]
+        rows = np.minimum(np.searchsorted(known, keys), len(known) - 1)
+        found = known[rows] == keys
+        then = previous.relative[rows]
+        reach = float(scans.ranges.max())
+        moved = (np.hypot(*(relative[:, :2] - then[:, :2]).T)
+                 + np.abs(se2.wrap_angle(relative[:, 2] - then[:, 2]))
+                 * (np.hypot(*then[:, :2].T) + reach))
+        reuse = found & (moved <= tolerance)
+        stale = ~reuse
+        sums[reuse] = previous.measures.distance_sum[rows[reuse]]
+        counts[reuse] = previous.measures.point_count[rows[reuse]]
+        relative[reuse] = then[reuse]
+    measures = pair_measures(scans, pairs[stale], keep_largest=0)
+    sums[stale], counts[stale] = measures.distance_sum, measures.point_count
+    return _MeasuredPairs(PairMeasures(pairs=pairs, distance_sum=sums, point_count=counts,
+                                       largest=np.zeros((len(pairs), 0))), relative)
 
 
 def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
@@ -210,7 +288,8 @@ def _refinement_steps(grid: np.ndarray, settings: TuningSettings) -> int:
 def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
                     settings: TuningSettings, progress: Progress | None, done: int,
                     total: int) -> None:
-    """Shrink the bracket around grid[index] by golden sections until its Phi width < tolerance.
+    """Shrink the bracket around grid[index] by golden sections until its Phi width < tolerance
+    or its two inner values agree within the flat tolerance.
 
     M(Phi) is only pointwise evaluable and need not be smooth: the section keeps the side
     holding the smaller value, one new evaluation per step.
@@ -226,7 +305,8 @@ def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
     inner_low = high - _GOLDEN * (high - low)
     inner_high = low + _GOLDEN * (high - low)
     value_low, value_high = value(inner_low), value(inner_high)
-    while _to_phi(high, settings) - _to_phi(low, settings) >= settings.tolerance:
+    while (_to_phi(high, settings) - _to_phi(low, settings) >= settings.tolerance
+           and not _flat(value_low, value_high, settings.flat_tolerance)):
         if value_low <= value_high:
             high, inner_high, value_high = inner_high, inner_low, value_low
             inner_low = high - _GOLDEN * (high - low)
@@ -235,3 +315,9 @@ def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
             low, inner_low, value_low = inner_low, inner_high, value_high
             inner_high = low + _GOLDEN * (high - low)
             value_high = value(inner_high)
+
+
+def _flat(first: float, second: float, tolerance: float) -> bool:
+    """Whether two M values agree within `tolerance` of the smaller (both finite)."""
+    return bool(np.isfinite(first) and np.isfinite(second)
+                and abs(first - second) <= tolerance * min(first, second))

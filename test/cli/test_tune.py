@@ -70,7 +70,7 @@ def test_scans_form_takes_the_scans_from_a_carmen_log(built, tmp_path):
 
 @pytest.mark.parametrize('arguments, message', [
     ([], 'give either GRAPH or --build'),
-    (['--grid-steps', '1'], 'grid_steps must be at least 3'),
+    (['--grid-steps', '1'], 'grid_steps: 1 is outside [3, 10000]'),
 ])
 def test_bad_arguments_exit_2(built, capsys, arguments, message):
     _, out = built

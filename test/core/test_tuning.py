@@ -8,11 +8,14 @@ from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.dcs import optimize
 from map_consistency_ros.core.measure import pair_measures_naive
 from map_consistency_ros.core.spatial_index import candidate_pairs
-from map_consistency_ros.core.tuning import InconsistencyProfile, TuningSettings, tune_dcs
+from map_consistency_ros.core import se2
+from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningSettings, _measure_moved,
+                                            tune_dcs)
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
-SEARCH = TuningSettings(grid_steps=5, tolerance=0.05, workers=1)
+# flat_tolerance=0: the golden section refines to the tolerance wherever it lands.
+SEARCH = TuningSettings(grid_steps=5, tolerance=0.05, workers=1, flat_tolerance=0.0)
 
 
 @pytest.fixture(scope='module')
@@ -39,7 +42,9 @@ def test_average_inconsistency_matches_the_naive_measure_at_an_independent_solve
     graph, ranges, model, offset = intel_excerpt
     profile = InconsistencyProfile(graph, ranges, model, offset, SEARCH)
     evaluation = profile.evaluate(1.0)
-    solution = optimize(graph, 1.0, iterations=SEARCH.iterations)
+    solution = optimize(graph, 1.0, iterations=SEARCH.iterations,
+                        relative_tolerance=SEARCH.relative_tolerance,
+                        initial_damping=SEARCH.initial_damping)
     np.testing.assert_array_equal(evaluation.optimization.poses, solution.poses)
     scans = profile.scans_at(solution.poses)
     naive = pair_measures_naive(scans, candidate_pairs(scans.extents), keep_largest=1)
@@ -104,7 +109,47 @@ def test_grids_are_even_in_sqrt_phi_or_in_phi():
 
 @pytest.mark.parametrize('settings', [dict(phi_min=0.0), dict(phi_min=2.0, phi_max=1.0),
                                       dict(grid_steps=2), dict(tolerance=0.0),
-                                      dict(iterations=0), dict(workers=-1)])
+                                      dict(iterations=0), dict(workers=-1),
+                                      dict(flat_tolerance=-0.1), dict(reuse_tolerance=-1.0),
+                                      dict(relative_tolerance=-1e-9), dict(initial_damping=0.0)])
 def test_invalid_settings_are_refused(settings):
     with pytest.raises(ValueError):
         TuningSettings(**settings)
+
+
+def test_a_flat_profile_stops_the_golden_section_after_its_first_two_points(intel_excerpt):
+    flat = TuningSettings(grid_steps=5, tolerance=1e-6, workers=1, flat_tolerance=1.0)
+    result = tune_dcs(*intel_excerpt, settings=flat)
+    assert len(result.profile_phi) == len(flat.grid()) + 2
+    assert result.average_inconsistency == result.profile_value.min()
+
+
+def test_only_pairs_that_moved_are_measured_again(intel_excerpt):
+    """A rigid motion of the whole map keeps every relative pose, so every pair is reused; pairs
+    of one scan moved by 5 cm are measured again. Both against the naive kernel."""
+    graph, ranges, model, offset = intel_excerpt
+    profile = InconsistencyProfile(graph, ranges, model, offset, SEARCH)
+    first = profile.scans_at(graph.poses)
+    pairs = candidate_pairs(first.extents)
+    measured = _measure_moved(first, pairs, None, 1e-4)
+    moved_poses = se2.compose(np.array([2.0, -1.0, 0.3]), graph.poses)
+    moved_poses[7] = se2.compose(moved_poses[7], [0.05, 0.0, 0.0])
+    second = profile.scans_at(moved_poses)
+    second_pairs = candidate_pairs(second.extents)
+    again = _measure_moved(second, second_pairs, measured, 1e-4)
+    naive = pair_measures_naive(second, second_pairs, keep_largest=0)
+    np.testing.assert_array_equal(again.measures.point_count, naive.point_count)
+    np.testing.assert_allclose(again.measures.distance_sum, naive.distance_sum, rtol=1e-9,
+                               atol=1e-12)
+    involved = (second_pairs == 7).any(axis=1)
+    assert involved.any() and (~involved).any()
+    known = pairs[:, 0] * len(ranges) + pairs[:, 1]
+    keys = second_pairs[:, 0] * len(ranges) + second_pairs[:, 1]
+    rows = np.minimum(np.searchsorted(known, keys), len(known) - 1)
+    # Reused pairs carry the relative pose they were measured at; measured ones the new one.
+    reused = ~involved & (known[rows] == keys)
+    assert reused.sum() > 0.8 * len(second_pairs)
+    np.testing.assert_array_equal(again.relative[reused], measured.relative[rows[reused]])
+    poses = second.sensor_poses
+    np.testing.assert_allclose(again.relative[involved], se2.relative(
+        poses[second_pairs[involved, 0]], poses[second_pairs[involved, 1]]))
