@@ -132,7 +132,7 @@ def test_sigint_when_idle_ends_cleanly(ros_env):
 def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, shared_data):
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     model = sensor_model(log)
-    process = _node(ros_env, '-p', 'grid_steps:=400')  # a long search
+    process = _node(ros_env, '-p', 'grid_steps:=4000')  # a long search
     client = Client()
     try:
         node = client.node
