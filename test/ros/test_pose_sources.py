@@ -93,7 +93,8 @@ def test_single_pose_source_matches_replay(source, stream, tmp_path, monkeypatch
         report = json.loads((tmp_path / 'r.json').read_text())
         expected = report['summary']
         deadline = time.monotonic() + 30
-        while not (reports and reports[-1]['scans'] == expected['scans']) and (
+        while not (reports and reports[-1]['scans'] == expected['scans']
+                   and reports[-1]['judged_keyframes'] == expected['scans']) and (
                 time.monotonic() < deadline):
             time.sleep(0.1)
         node_report = reports[-1] if reports else {}
