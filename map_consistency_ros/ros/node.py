@@ -262,7 +262,7 @@ class MapConsistencyNode(Node):
                 if len(self._poses) >= self._queue_limit:
                     self._poses.popleft()
                     self._problems += 1
-                    self._last_problem = ('pose: queue full, the oldest pose dropped',
+                    self._last_problem = ('pose: queue full, the oldest pose or graph dropped',
                                           time.monotonic())
                 self._poses.append((time.monotonic(), record))
             self._wake.set()
@@ -428,7 +428,8 @@ class MapConsistencyNode(Node):
                             update_latency_s=self._latency, phi=self._phi, timing=self._timing,
                             lost_scans=self._health().lost_scans,
                             keyframes=snapshot.keyframe_count,
-                            judged_keyframes=judged.keyframe_count))
+                            judged_keyframes=judged.keyframe_count,
+                            inconsistent_stamps=judged.stamps[assessment.result.inconsistent]))
         if self._feed.bridge_counts is not None:
             content['slam_toolbox_bridge'] = asdict(self._feed.bridge_counts)
         return plain(content)
