@@ -209,6 +209,7 @@ class MonitorFeed:
                                         self.settings.keyframe_angle)
                           if self.settings.single_poses else None)
         self.bridge = SlamToolboxBridge() if self.settings.slam_toolbox else None
+        self._held: GraphSnapshot | None = None  # a snapshot waiting for its vertices' poses
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
@@ -297,7 +298,8 @@ class MonitorFeed:
         return self._update(self.monitor.refresh) if self.monitor.pending else Applied()
 
     def _bridge_pose(self, sample: PoseSample) -> Applied:
-        """A slam_toolbox `pose` message: the next vertex's stamp and first-seen pose."""
+        """A slam_toolbox `pose` message: the next vertex's stamp and first-seen pose; it
+        releases a held snapshot once every vertex of it has its pose."""
         try:
             self.bridge.add_pose(sample.stamp, sample.pose)
         except ValueError as error:
@@ -306,13 +308,36 @@ class MonitorFeed:
             return Applied(warnings=(f'slam_toolbox pose at {sample.stamp:.6f} skipped: '
                                      f'{error}; later vertices may be associated with the '
                                      'wrong scans',))
+        if self._held is not None and not self.bridge.waits_for_poses(self._held.ids):
+            held, self._held = self._held, None
+            return self._apply_graph(held)
         return Applied()
 
     def _graph(self, snapshot: GraphSnapshot) -> Applied:
-        """A slam_toolbox graph snapshot: the bridge's keyframes become the keyframe estimate."""
+        """A slam_toolbox graph snapshot, applied once its vertices' poses have come.
+
+        slam_toolbox publishes a vertex's pose before any snapshot holding it, but the node
+        takes one message per topic at a time, so a snapshot can overtake a backlog of poses.
+        Applied early, its vertices would get other heading references and keyframe times than
+        in log order (replay): it is held until the last of its poses arrives, or until the
+        next snapshot (a pose was lost: then it is applied as it is, with a warning).
+        """
         if self.bridge is None:
             return Applied(warnings=('a graph snapshot was given while pose_source is '
                                      f'{self.settings.pose_source!r}; ignored',))
+        earlier = Applied()
+        if self._held is not None:
+            held, self._held = self._held, None
+            earlier = self._apply_graph(held)
+        if self.bridge.waits_for_poses(snapshot.ids):
+            self._held = snapshot
+            return earlier
+        applied = self._apply_graph(snapshot)
+        return Applied(summary=applied.summary or earlier.summary,
+                       warnings=earlier.warnings + applied.warnings)
+
+    def _apply_graph(self, snapshot: GraphSnapshot) -> Applied:
+        """The snapshot to the bridge, the bridge's keyframes to the monitor."""
         try:
             self.bridge.update_vertices(snapshot.ids, snapshot.positions)
         except ValueError as error:
@@ -324,10 +349,11 @@ class MonitorFeed:
         counts = self.bridge.counts
         warnings = []
         if counts.vertices_without_pose:
-            # Normal for a moment (the two topics arrive independently), a lost pose message
-            # when it persists; either way these vertices are not judged yet.
+            # Only a snapshot that waited in vain comes here with them: pose messages were
+            # lost, or the session started before the bridge listened (first_vertex_id).
             warnings.append(f'graph snapshot: {counts.vertices_without_pose} vertices have no '
-                            'pose message (yet) and are left out')
+                            'pose message (lost, or sent before the node listened) and are '
+                            'left out')
         if not len(stamps):
             return Applied(warnings=tuple(warnings))
         applied = self._update(lambda: self.monitor.update_trajectory(stamps, poses))

@@ -27,6 +27,7 @@ from map_consistency_ros.ros.conversions import message_class
 REPO = FilePath(__file__).resolve().parents[2]
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SETTLE_SECONDS = 1.0
 
 
 @dataclass
@@ -44,11 +45,16 @@ class NodeUnderTest:
         return publisher
 
     def wait_for_subscriptions(self, timeout: float = 30.0) -> None:
-        """Until the node subscribes to every publisher (or `timeout` seconds)."""
+        """Until the node subscribes to every publisher (or `timeout` seconds), then a moment.
+
+        The probe sees the node's subscription before the node's side has matched the probe's
+        publisher; volatile messages sent in between are lost, and a lost slam_toolbox `pose`
+        shifts every later vertex (what replay --publish's settle time is for, too)."""
         deadline = time.monotonic() + timeout
         while not all(p.get_subscription_count() for p in self.publishers) and (
                 time.monotonic() < deadline):
             time.sleep(0.05)
+        time.sleep(SETTLE_SECONDS)
 
     def replay_and_final_report(self, bag: FilePath, out: FilePath,
                                 timeout: float = 60.0) -> tuple[int, dict, dict]:

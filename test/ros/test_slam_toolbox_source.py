@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from map_consistency_ros.io import messages
@@ -42,9 +43,13 @@ def test_slam_toolbox_source_matches_replay(slam_toolbox_stream, tmp_path, node_
             writer.write_single_pose(stamp + 1e-4, messages.POSE_COVARIANCE_TYPE, stamp,
                                      stream.poses[index], frame_id='map')
             if index in snapshots:
-                # slam_toolbox publishes its graph after the poses of every vertex in it; the
-                # pause keeps that order across the two topics
-                time.sleep(0.05)
+                # slam_toolbox publishes its graph after the poses of every vertex in it, and
+                # their scans came before: the node has them all (acknowledged, then taken
+                # from its queues: one message per topic at a time) before the graph, as in
+                # the bag. The feed would hold a graph for late poses, not for late scans.
+                for publisher in (scan_pub, pose_pub):
+                    publisher.wait_for_all_acked(Duration(seconds=5))
+                time.sleep(0.2)
                 ids, positions = snapshots[index]
                 graph_pub.publish(messages.graph_markers_message(message_class, stamp, ids,
                                                                  positions))
