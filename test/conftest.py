@@ -52,3 +52,40 @@ def room_log(tmp_path):
         return path, poses, ranges
 
     return write
+
+
+@pytest.fixture(scope='session')
+def slam_toolbox_stream(shared_data):
+    """What slam_toolbox publishes while mapping the first 120 real Intel scans.
+
+    Every scan is accepted (vertex id = its index). Scan LOOP triggers a wrong loop closure:
+    it moves vertices PIVOT.. rigidly (0.1 rad and a shift about vertex PIVOT), its own `pose`
+    and every later one carry the moved poses, and the graph markers every 10 scans show the
+    moved positions from then on. Returns a namespace: stamps (N,), ranges (N, K), model,
+    poses (N, 3) (the `pose` message of each scan), snapshots [(index of the scan after which
+    it is published, ids (V,), positions (V, 2))], final (N, 3) (the graph's final poses,
+    headings included, which the markers do not carry), truth (N, 3) (the poses before the
+    loop closure), loop.
+    """
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from map_consistency_ros.core import se2
+    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+
+    scans, pivot, loop, every = 120, 40, 85, 10
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    order = np.argsort(log.timestamps[:scans], kind='stable')
+    truth = log.laser_poses[:scans][order]
+    moved = truth.copy()
+    moved[pivot:] = se2.compose(se2.compose(truth[pivot], np.array([0.05, -0.03, 0.1])),
+                                se2.relative(truth[pivot], truth[pivot:]))
+    poses = np.where((np.arange(scans) >= loop)[:, None], moved, truth)
+    snapshots = []
+    for index in range(every - 1, scans, every):
+        graph = moved if index >= loop else truth
+        snapshots.append((index, np.arange(index + 1), graph[:index + 1, :2].copy()))
+    return SimpleNamespace(stamps=log.timestamps[:scans][order], ranges=log.ranges[:scans][order],
+                           model=sensor_model(log), poses=poses, snapshots=snapshots,
+                           final=moved, truth=truth, loop=loop)

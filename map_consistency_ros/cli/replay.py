@@ -14,6 +14,10 @@ Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic)
                              robot moved --keyframe-distance or turned --keyframe-angle; the
                              laser offset comes from /tf_static (pose child frame -> scan frame)
                              unless --laser-offset is given.
+  slam_toolbox               its `pose` (PoseWithCovarianceStamped, one per accepted scan) and
+                             its graph markers (MarkerArray on --graph-topic): when the bag has
+                             both, the poses and markers go to the slam_toolbox bridge, as in the
+                             node with pose_source slam_toolbox (docs/slam_bridges.md).
 std_msgs/Float64MultiArray on /constraints (optional) is passed on as the pose-graph edges.
 
 --publish plays the bag's scan, pose and constraints topics onto live ROS 2 topics instead
@@ -30,7 +34,7 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +46,7 @@ from map_consistency_ros.core.explanation import Assessment, ExplanationSettings
 from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
-from map_consistency_ros.core.records import KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.core.records import GraphSnapshot, KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import PATH_TYPE, POSE_SOURCE_TYPES, time_message
@@ -66,6 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(default /trajectory, else the only pose topic of the bag)')
     topics.add_argument('--constraints-topic', default='/constraints',
                         help='Float64MultiArray edge rows, optional (%(default)s)')
+    topics.add_argument('--graph-topic', default=BagTopics.graph,
+                        help="slam_toolbox's graph markers (MarkerArray), optional: with a "
+                             'PoseWithCovarianceStamped pose topic the poses and markers go to '
+                             'the slam_toolbox bridge (%(default)s)')
     parser.add_argument('--params-file', type=Path, metavar='YAML',
                         help="the node's ROS 2 parameter file (config/map_consistency.yaml); "
                              'options given here override its values')
@@ -97,6 +105,7 @@ class ReplayStats:
     trajectories: int = 0
     pose_messages: int = 0
     constraint_sets: int = 0
+    graph_snapshots: int = 0
     warnings: list[str] = field(default_factory=list)
     seconds: float = 0.0  # wall-clock time of the replay
     log_seconds: float = 0.0  # bag time replayed
@@ -154,6 +163,8 @@ class Replay:
             stats.trajectories += 1
         elif isinstance(record, PoseSample):
             stats.pose_messages += 1
+        elif isinstance(record, GraphSnapshot):
+            stats.graph_snapshots += 1
         else:
             stats.constraint_sets += 1
 
@@ -193,7 +204,8 @@ def parameter_values(args: argparse.Namespace) -> dict:
     for warning in unknown_names(base, PARAMETER_NAMES + ('use_sim_time',)):
         print(f'map-consistency replay: {args.params_file}: {warning}', file=sys.stderr)
     values = options.parameter_values(args, base)
-    for name in ('bags', 'scan_topic', 'pose_topic', 'constraints_topic', 'params_file'):
+    for name in ('bags', 'scan_topic', 'pose_topic', 'constraints_topic', 'graph_topic',
+                 'params_file'):
         values.pop(name, None)  # options, not parameters
     return values
 
@@ -207,7 +219,7 @@ def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
     except ValueError as error:
         raise InputError('parameters', str(error)) from None
     topics = BagTopics(scan=args.scan_topic, poses=args.pose_topic,
-                       constraints=args.constraints_topic)
+                       constraints=args.constraints_topic, graph=args.graph_topic)
     return BagReader(args.bags, topics, max_range=max_range)
 
 
@@ -226,9 +238,11 @@ def node_parameters(values: dict) -> dict:
     return checked
 
 
-def make_feed(values: dict, pose_type: str) -> MonitorFeed:
-    """The node's feed with the node's parameters; the pose source is the bag topic's type."""
-    source = next(name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
+def make_feed(values: dict, pose_type: str, graph: bool = False) -> MonitorFeed:
+    """The node's feed with the node's parameters; the pose source is the bag topic's type, or
+    slam_toolbox when the bag has its graph markers beside its poses (`graph`)."""
+    source = 'slam_toolbox' if graph else next(
+        name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
     values = dict(values, pose_source=source)
     return MonitorFeed(settings_from_values(ConsistencyParameters, values),
                        settings_from_values(MonitorSettings, values),
@@ -241,7 +255,7 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
     values = parameter_values(args) if values is None else values
     offset, offset_source = _laser_offset(bag, values)
     parameters = node_parameters(dict(values, laser_offset=tuple(offset)))
-    feed = make_feed(parameters, bag.pose_type)
+    feed = make_feed(parameters, bag.pose_type, bag.has_graph)
     replay = Replay(bag, feed)
     with ProgressBar('replaying', enabled=not args.quiet) as progress:
         snapshot = replay.run(progress, args.duration)
@@ -249,13 +263,15 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
     details = {
         'source': bag.source,
         'topics': {'scan': bag.topics.scan, 'poses': bag.pose_topic, 'pose_type': bag.pose_type,
-                   'constraints': bag.topics.constraints if bag.has_constraints else None},
+                   'constraints': bag.topics.constraints if bag.has_constraints else None,
+                   'graph': bag.topics.graph if bag.has_graph else None},
         'laser_offset': offset, 'laser_offset_source': offset_source,
         'bag_duration_seconds': bag.duration,
         'replay': {'scan_messages': replay.stats.scans,
                    'trajectory_updates': replay.stats.trajectories,
                    'pose_messages': replay.stats.pose_messages,
                    'constraint_sets': replay.stats.constraint_sets,
+                   'graph_snapshots': replay.stats.graph_snapshots,
                    'constraint_rows': int(monitor.constraints.shape[0]),
                    'keyframes': snapshot.keyframe_count,
                    'unmatched_poses': snapshot.unmatched_poses,
@@ -271,6 +287,8 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
         'keyframe_stamps': snapshot.stamps,
         'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),
     }
+    if feed.bridge_counts is not None:
+        details['slam_toolbox_bridge'] = asdict(feed.bridge_counts)
     if snapshot.model is not None:
         model = snapshot.model
         details['sensor_model'] = {'angle_min': model.angle_min,
@@ -290,7 +308,13 @@ def _print_summary(assessment: Assessment, replay: Replay, bag: BagReader) -> No
     print(f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
           f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
           f'{stats.realtime_rate:.1f} scans/s')
-    if stats.trajectories == 0 and stats.pose_messages:
+    counts = replay.feed.bridge_counts
+    if counts is not None:
+        print(f'  slam_toolbox bridge   {stats.pose_messages} poses, {stats.graph_snapshots} '
+              f'graph snapshots: {counts.keyframes} keyframes, {counts.interpolated} headings '
+              f'interpolated, {counts.vertices_without_pose} vertices without a pose, '
+              f'{counts.pending_poses} poses without a vertex')
+    elif stats.trajectories == 0 and stats.pose_messages:
         print(f'  keyframes             {stats.pose_messages} poses, keyframes every '
               f'{replay.feed.settings.keyframe_distance:g} m / '
               f'{replay.feed.settings.keyframe_angle:g} rad')
@@ -323,9 +347,7 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
         from map_consistency_ros.ros.conversions import message_class
     except ImportError as error:
         raise InputError('--publish', f'needs rclpy from ROS 2 Jazzy ({error})') from None
-    topics = [bag.topics.scan, bag.pose_topic]
-    if bag.has_constraints:
-        topics.append(bag.topics.constraints)
+    topics = bag.input_topics
     messages = bag.raw_messages(topics)
     context = Context()
     rclpy.init(context=context)

@@ -14,6 +14,10 @@ record did, including every warning, so the node and replay report the same prob
 - `PoseSample`: one pose of a single-pose topic; `PoseKeyframer` interpolates each scan's pose
   and selects keyframes by travelled distance / turned angle, as a SLAM front end would.
 - `Constraints`: the pose-graph edges for DCS retuning.
+- With `pose_source: slam_toolbox`, `PoseSample`s (slam_toolbox's `pose`, one per accepted
+  scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
+  (core/graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
+  keyframe estimate.
 """
 from __future__ import annotations
 
@@ -25,12 +29,15 @@ import numpy as np
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.graph_bridge import BridgeCounts, SlamToolboxBridge
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, UpdateSummary
 from map_consistency_ros.core.parameters import parameter
-from map_consistency_ros.core.records import (Constraints, KeyframeEstimate, PoseSample, Record,
-                                              Scan)
+from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                              PoseSample, Record, Scan)
 
-POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance')
+POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox')
+# Sources whose single poses are keyframed by travel; slam_toolbox's poses go to its bridge.
+KEYFRAMED_SOURCES = ('odometry', 'pose', 'pose_with_covariance')
 # A stamp gap longer than this many median scan periods counts the scans it must have held;
 # drivers stamp regularly, but keyframe-only logs do not, so the count is an estimate.
 _GAP_PERIODS = 2.5
@@ -43,8 +50,10 @@ class FeedSettings:
     """How input messages become keyframes."""
 
     pose_source: str = parameter(
-        'path', 'where keyframe poses come from: a keyframe Path on `trajectory`, or single '
-        'poses on `pose` (Odometry, PoseStamped, PoseWithCovarianceStamped)',
+        'path', 'where keyframe poses come from: a keyframe Path on `trajectory`; single '
+        'poses on `pose` (Odometry, PoseStamped, PoseWithCovarianceStamped), keyframed by '
+        'travel; or slam_toolbox: its `pose` (one per accepted scan) and its graph markers on '
+        '`graph_visualization`, bridged to its keyframe estimate',
         choices=POSE_SOURCES)
     max_range: float = parameter(
         8.0, 'usable laser range, capped by each scan\'s range_max; longer or invalid beams '
@@ -70,7 +79,13 @@ class FeedSettings:
 
     @property
     def single_poses(self) -> bool:
-        return self.pose_source != 'path'
+        """Whether single poses are keyframed by travel (PoseKeyframer)."""
+        return self.pose_source in KEYFRAMED_SOURCES
+
+    @property
+    def slam_toolbox(self) -> bool:
+        """Whether poses and graph snapshots go to the slam_toolbox bridge."""
+        return self.pose_source == 'slam_toolbox'
 
 
 class PoseKeyframer:
@@ -193,6 +208,8 @@ class MonitorFeed:
         self.keyframer = (PoseKeyframer(self.settings.keyframe_distance,
                                         self.settings.keyframe_angle)
                           if self.settings.single_poses else None)
+        self.bridge = SlamToolboxBridge() if self.settings.slam_toolbox else None
+        self._held: GraphSnapshot | None = None  # a snapshot waiting for its vertices' poses
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
@@ -213,18 +230,25 @@ class MonitorFeed:
         """Stamp of the newest scan since the last reset, -inf before any."""
         return self._newest_scan
 
+    @property
+    def bridge_counts(self) -> BridgeCounts | None:
+        """The slam_toolbox bridge's counts after its last snapshot (None for other sources)."""
+        return None if self.bridge is None else self.bridge.counts
+
     def apply(self, record: Record) -> Applied:
         """Apply one record; bad content becomes a warning, never an exception."""
         if isinstance(record, Scan):
             return self._scan(record)
         if isinstance(record, KeyframeEstimate):
-            if self.keyframer is not None:
+            if self.settings.pose_source != 'path':
                 return Applied(warnings=('a keyframe estimate was given while pose_source is '
                                          f'{self.settings.pose_source!r}; ignored',))
             return self._update(lambda: self.monitor.update_trajectory(record.stamps,
                                                                        record.poses))
+        if isinstance(record, GraphSnapshot):
+            return self._graph(record)
         if isinstance(record, PoseSample):
-            return self._pose(record)
+            return self._bridge_pose(record) if self.bridge is not None else self._pose(record)
         if isinstance(record, Constraints):
             try:
                 self.monitor.set_constraints(record.rows)
@@ -272,6 +296,68 @@ class MonitorFeed:
         except ValueError as error:
             return Applied(warnings=(f'scan at {scan.stamp:.6f} skipped: {error}',))
         return self._update(self.monitor.refresh) if self.monitor.pending else Applied()
+
+    def _bridge_pose(self, sample: PoseSample) -> Applied:
+        """A slam_toolbox `pose` message: the next vertex's stamp and first-seen pose; it
+        releases a held snapshot once every vertex of it has its pose."""
+        try:
+            self.bridge.add_pose(sample.stamp, sample.pose)
+        except ValueError as error:
+            # The bridge associates by arrival order: a pose it cannot take shifts every
+            # later vertex, and the user must hear that, not only that one pose was skipped.
+            return Applied(warnings=(f'slam_toolbox pose at {sample.stamp:.6f} skipped: '
+                                     f'{error}; later vertices may be associated with the '
+                                     'wrong scans',))
+        if self._held is not None and not self.bridge.waits_for_poses(self._held.ids):
+            held, self._held = self._held, None
+            return self._apply_graph(held)
+        return Applied()
+
+    def _graph(self, snapshot: GraphSnapshot) -> Applied:
+        """A slam_toolbox graph snapshot, applied once its vertices' poses have come.
+
+        slam_toolbox publishes a vertex's pose before any snapshot holding it, but the node
+        takes one message per topic at a time, so a snapshot can overtake a backlog of poses.
+        Applied early, its vertices would get other heading references and keyframe times than
+        in log order (replay): it is held until the last of its poses arrives, or until the
+        next snapshot (a pose was lost: then it is applied as it is, with a warning).
+        """
+        if self.bridge is None:
+            return Applied(warnings=('a graph snapshot was given while pose_source is '
+                                     f'{self.settings.pose_source!r}; ignored',))
+        earlier = Applied()
+        if self._held is not None:
+            held, self._held = self._held, None
+            earlier = self._apply_graph(held)
+        if self.bridge.waits_for_poses(snapshot.ids):
+            self._held = snapshot
+            return earlier
+        applied = self._apply_graph(snapshot)
+        return Applied(summary=applied.summary or earlier.summary,
+                       warnings=earlier.warnings + applied.warnings)
+
+    def _apply_graph(self, snapshot: GraphSnapshot) -> Applied:
+        """The snapshot to the bridge, the bridge's keyframes to the monitor."""
+        try:
+            self.bridge.update_vertices(snapshot.ids, snapshot.positions)
+        except ValueError as error:
+            return Applied(warnings=(f'graph snapshot ignored: {error}',))
+        if not len(snapshot.ids):
+            return Applied(warnings=('graph snapshot without vertices ignored (slam_toolbox '
+                                     'sends its vertices elsewhere in interactive mode)',))
+        stamps, poses = self.bridge.keyframes()
+        counts = self.bridge.counts
+        warnings = []
+        if counts.vertices_without_pose:
+            # Only a snapshot that waited in vain comes here with them: pose messages were
+            # lost, or the session started before the bridge listened (first_vertex_id).
+            warnings.append(f'graph snapshot: {counts.vertices_without_pose} vertices have no '
+                            'pose message (lost, or sent before the node listened) and are '
+                            'left out')
+        if not len(stamps):
+            return Applied(warnings=tuple(warnings))
+        applied = self._update(lambda: self.monitor.update_trajectory(stamps, poses))
+        return Applied(summary=applied.summary, warnings=tuple(warnings) + applied.warnings)
 
     def _pose(self, sample: PoseSample) -> Applied:
         if self.keyframer is None:

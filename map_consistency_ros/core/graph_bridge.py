@@ -203,6 +203,14 @@ class SlamToolboxBridge:
         self._counts = BridgeCounts(keyframes=0, pending_poses=0, vertices_without_pose=0,
                                     interpolated=0, empty_snapshots=0)
 
+    def waits_for_poses(self, ids: np.ndarray) -> bool:
+        """Whether a snapshot of vertex `ids` names vertices whose pose message has not come yet.
+
+        slam_toolbox publishes every vertex's `pose` before any snapshot holding it, so such a
+        snapshot overtook poses on their way (the topics are delivered independently)."""
+        return bool(len(ids)) and int(np.max(ids)) >= (self.settings.first_vertex_id
+                                                       + len(self._stamps))
+
     @property
     def counts(self) -> BridgeCounts:
         """Counts of the last `keyframes()` call."""

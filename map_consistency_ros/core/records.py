@@ -51,4 +51,15 @@ class Constraints:
     rows: np.ndarray
 
 
-Record = Scan | KeyframeEstimate | PoseSample | Constraints
+@dataclass(frozen=True)
+class GraphSnapshot:
+    """One full snapshot of a SLAM graph's vertices, positions only (slam_toolbox's
+    graph_visualization): vertex ids (V,) and their current positions (V, 2) in `frame_id`.
+    It replaces the previous snapshot: a vertex missing from it is gone."""
+
+    ids: np.ndarray
+    positions: np.ndarray
+    frame_id: str = ''
+
+
+Record = Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot

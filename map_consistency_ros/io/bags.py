@@ -24,9 +24,11 @@ from map_consistency_ros.core import se2
 from map_consistency_ros.core.records import Record
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
-from map_consistency_ros.io.messages import (CONSTRAINTS_TYPE, PATH_TYPE, POSE_TYPES, SCAN_TYPE,
-                                             constraints_message, path_message, scan_message,
-                                             single_pose_message, to_record)
+from map_consistency_ros.io.messages import (CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE, PATH_TYPE,
+                                             POSE_COVARIANCE_TYPE, POSE_TYPES, SCAN_TYPE,
+                                             constraints_message, graph_markers_message,
+                                             path_message, scan_message, single_pose_message,
+                                             to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 STORAGES = ('mcap', 'sqlite3')
@@ -46,11 +48,13 @@ BagRecord = Record | BadMessage
 
 @dataclass(frozen=True)
 class BagTopics:
-    """Topic names. `poses=None` picks '/trajectory', else the bag's only pose topic."""
+    """Topic names. `poses=None` picks '/trajectory', else the bag's only pose topic. `graph`
+    is slam_toolbox's graph markers (its node publishes `slam_toolbox/graph_visualization`)."""
 
     scan: str = '/scan'
     poses: str | None = None
     constraints: str = '/constraints'
+    graph: str = '/slam_toolbox/graph_visualization'
 
 
 # Errors rosbags and the decompressors raise on damaged files (MemoryError: a garbage length
@@ -140,6 +144,8 @@ class BagReader:
         self.pose_type = self._require(self.pose_topic, POSE_TYPES, '--pose-topic')
         if self.topics.constraints in self._connections:
             self._require(self.topics.constraints, (CONSTRAINTS_TYPE,), '--constraints-topic')
+        if self.topics.graph in self._connections:
+            self._require(self.topics.graph, (MARKER_ARRAY_TYPE,), '--graph-topic')
 
     def _default_pose_topic(self) -> str:
         types = self._topic_types()
@@ -159,6 +165,23 @@ class BagReader:
     @property
     def has_constraints(self) -> bool:
         return self.topics.constraints in self._connections
+
+    @property
+    def has_graph(self) -> bool:
+        """Whether the bag holds slam_toolbox's graph markers beside its `pose` messages
+        (PoseWithCovarianceStamped): then the poses go to the slam_toolbox bridge."""
+        return (self.topics.graph in self._connections
+                and self.pose_type == POSE_COVARIANCE_TYPE)
+
+    @property
+    def input_topics(self) -> list[str]:
+        """The topics replay reads: scan, poses, and constraints and graph when present."""
+        topics = [self.topics.scan, self.pose_topic]
+        if self.has_constraints:
+            topics.append(self.topics.constraints)
+        if self.has_graph:
+            topics.append(self.topics.graph)
+        return topics
 
     @property
     def is_ros1(self) -> bool:
@@ -183,14 +206,12 @@ class BagReader:
         return [connection for topic in topics for connection in self._connections.get(topic, [])]
 
     def records(self) -> Iterator[tuple[float, BagRecord]]:
-        """(log time in seconds, record) of the scan, pose and constraints topics, in log order.
+        """(log time in seconds, record) of the input topics (`input_topics`), in log order.
 
         Messages whose content is unusable come as BadMessage; a damaged file raises
         InputError.
         """
-        topics = [self.topics.scan, self.pose_topic]
-        if self.has_constraints:
-            topics.append(self.topics.constraints)
+        topics = self.input_topics
         counts: dict[str, int] = {}
         for connection, timestamp, message in self._messages(self._selected(topics)):
             index = counts[connection.topic] = counts.get(connection.topic, 0) + 1
@@ -255,7 +276,7 @@ def _describe(error: BaseException) -> str:
 
 class BagWriter:
     """Writes a rosbag2 (mcap or sqlite3) with /scan, the pose topic (/trajectory Paths, or
-    single poses) and /constraints.
+    single poses), /constraints and, when written, slam_toolbox's graph markers.
 
     Use as a context manager; `path` must not exist. Each write takes its log time in seconds
     (the time the message would have been published). `compress` turns on zstd chunk
@@ -300,9 +321,12 @@ class BagWriter:
             self._writer = None
 
     def _write(self, msgtype: str, time: float, message) -> None:
-        if msgtype not in self._connections:  # the pose topic carries the first pose type
+        if msgtype not in self._connections:
+            # the pose topic carries the first pose type; the graph topic appears only in bags
+            # written with graph markers, since replay takes its presence as slam_toolbox input
+            topic = self.topics.graph if msgtype == MARKER_ARRAY_TYPE else self.topics.poses
             self._connections[msgtype] = self._writer.add_connection(
-                self.topics.poses, msgtype, typestore=self.typestore)
+                topic, msgtype, typestore=self.typestore)
         data = self.typestore.serialize_cdr(message, msgtype)
         self._writer.write(self._connections[msgtype], int(round(time * 1e9)), data)
 
@@ -330,3 +354,10 @@ class BagWriter:
     def write_constraints(self, time: float, rows: np.ndarray) -> None:
         """All pose-graph edges as a Float64MultiArray of rows laid out as CONSTRAINT_FIELDS."""
         self._write(CONSTRAINTS_TYPE, time, constraints_message(self._types, rows))
+
+    def write_graph(self, time: float, ids: np.ndarray, positions: np.ndarray,
+                    frame_id: str = 'map') -> None:
+        """slam_toolbox's graph markers: DELETEALL, a SPHERE per vertex id (V,) at positions
+        (V, 2), the edges, on the graph topic."""
+        self._write(MARKER_ARRAY_TYPE, time, graph_markers_message(self._types, time, ids,
+                                                                   positions, frame_id))

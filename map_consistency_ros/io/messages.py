@@ -18,8 +18,8 @@ import numpy as np
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.posegraph import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
-from map_consistency_ros.core.records import (Constraints, KeyframeEstimate, PoseSample, Record,
-                                              Scan)
+from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                              PoseSample, Record, Scan)
 from map_consistency_ros.core.scan_geometry import SensorModel
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
@@ -28,11 +28,19 @@ ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 POSE_STAMPED_TYPE = 'geometry_msgs/msg/PoseStamped'
 POSE_COVARIANCE_TYPE = 'geometry_msgs/msg/PoseWithCovarianceStamped'
 CONSTRAINTS_TYPE = 'std_msgs/msg/Float64MultiArray'
+MARKER_ARRAY_TYPE = 'visualization_msgs/msg/MarkerArray'
 SINGLE_POSE_TYPES = (ODOMETRY_TYPE, POSE_STAMPED_TYPE, POSE_COVARIANCE_TYPE)
 POSE_TYPES = (PATH_TYPE,) + SINGLE_POSE_TYPES
 # The node's pose_source parameter -> message type of its pose topic.
 POSE_SOURCE_TYPES = {'path': PATH_TYPE, 'odometry': ODOMETRY_TYPE, 'pose': POSE_STAMPED_TYPE,
-                     'pose_with_covariance': POSE_COVARIANCE_TYPE}
+                     'pose_with_covariance': POSE_COVARIANCE_TYPE,
+                     'slam_toolbox': POSE_COVARIANCE_TYPE}
+# slam_toolbox's graph_visualization (src/loop_closure_assistant.cpp, publishGraph): one SPHERE
+# per vertex in this namespace, marker id = vertex id; edges in other namespaces.
+SLAM_TOOLBOX_NAMESPACE = 'slam_toolbox'
+# visualization_msgs/Marker constants (the same in every ROS 2 release)
+MARKER_SPHERE, MARKER_LINE_LIST = 2, 5
+MARKER_ADD, MARKER_DELETE, MARKER_DELETEALL = 0, 2, 3
 
 MessageTypes = Callable[[str], type]
 
@@ -126,9 +134,57 @@ def constraints_to_numpy(msg) -> np.ndarray:
     return data.reshape(-1, width)
 
 
+def graph_markers_to_numpy(msg) -> tuple[np.ndarray, np.ndarray, str]:
+    """(vertex ids (V,), positions (V, 2), frame) of a slam_toolbox graph_visualization array.
+
+    Only SPHERE markers of namespace `slam_toolbox` are vertices (the edges' LINE_LISTs live in
+    `slam_toolbox_edges`); the orientation is ignored, slam_toolbox leaves it the identity.
+    Markers are taken in order: DELETEALL forgets every vertex before it, DELETE the vertex of
+    its id. An array without a DELETEALL is not a full snapshot (slam_toolbox always starts
+    with one), and one it cannot take whole would silently lose or misplace vertices: both
+    raise ValueError, as do a non-SPHERE marker in the vertex namespace and a non-finite
+    position.
+    """
+    vertices: dict[int, tuple[float, float]] = {}
+    repeated: list[int] = []
+    cleared = False
+    frame_id = ''
+    for index, marker in enumerate(msg.markers):
+        if marker.action == MARKER_DELETEALL:
+            vertices.clear()
+            repeated.clear()
+            cleared = True
+            continue
+        if marker.ns != SLAM_TOOLBOX_NAMESPACE:
+            continue
+        if marker.action == MARKER_DELETE:
+            vertices.pop(int(marker.id), None)
+            continue
+        if marker.action != MARKER_ADD or marker.type != MARKER_SPHERE:
+            raise ValueError(f'marker {index} (id {marker.id}) in namespace '
+                             f'{SLAM_TOOLBOX_NAMESPACE!r} has type {marker.type}, action '
+                             f'{marker.action}; a vertex is an added SPHERE')
+        position = (marker.pose.position.x, marker.pose.position.y)
+        if not all(math.isfinite(value) for value in position):
+            raise ValueError(f'vertex {marker.id} has a non-finite position {position}')
+        if int(marker.id) in vertices:
+            repeated.append(int(marker.id))
+        vertices[int(marker.id)] = position
+        frame_id = frame_id or marker.header.frame_id
+    if not cleared:
+        raise ValueError('no DELETEALL marker: not a full slam_toolbox graph snapshot')
+    if repeated:
+        # slam_toolbox's ids are per-laser state ids: several lasers repeat them.
+        raise ValueError(f'vertex ids {sorted(set(repeated))[:5]} appear more than once '
+                         '(one laser is supported)')
+    ids = np.fromiter(vertices, dtype=np.int64, count=len(vertices))
+    positions = np.array(list(vertices.values()), dtype=np.float64).reshape(-1, 2)
+    return ids, positions, frame_id
+
+
 def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
     """The core record of one message of type `msgtype` (one of SCAN_TYPE, POSE_TYPES,
-    CONSTRAINTS_TYPE); ValueError for unusable content."""
+    CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE); ValueError for unusable content."""
     if msgtype == SCAN_TYPE:
         stamp, ranges, model = scan_to_numpy(msg, max_range)
         return Scan(stamp=stamp, ranges=ranges, model=model, frame_id=msg.header.frame_id)
@@ -137,6 +193,9 @@ def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
         return KeyframeEstimate(stamps=stamps, poses=poses, frame_id=msg.header.frame_id)
     if msgtype == CONSTRAINTS_TYPE:
         return Constraints(rows=constraints_to_numpy(msg))
+    if msgtype == MARKER_ARRAY_TYPE:
+        ids, positions, frame_id = graph_markers_to_numpy(msg)
+        return GraphSnapshot(ids=ids, positions=positions, frame_id=frame_id)
     if msgtype in SINGLE_POSE_TYPES:
         pose = msg.pose if msgtype == POSE_STAMPED_TYPE else msg.pose.pose
         return PoseSample(stamp=stamp_to_seconds(msg.header.stamp), pose=pose_to_numpy(pose),
@@ -224,3 +283,42 @@ def constraints_message(types: MessageTypes, rows: np.ndarray):
              dimension(label='fields', size=rows.shape[1], stride=rows.shape[1])],
         data_offset=0)
     return types(CONSTRAINTS_TYPE)(layout=layout, data=rows.ravel())
+
+
+def _marker(types: MessageTypes, header, namespace: str, marker_id: int, marker_type: int,
+            action: int, position: tuple[float, float] = (0.0, 0.0), points=()):
+    """A Marker with every field filled (rosbags classes have no defaults)."""
+    point = types('geometry_msgs/msg/Point')
+    return types('visualization_msgs/msg/Marker')(
+        header=header, ns=namespace, id=marker_id, type=marker_type, action=action,
+        pose=types('geometry_msgs/msg/Pose')(
+            position=point(x=float(position[0]), y=float(position[1]), z=0.0),
+            orientation=types('geometry_msgs/msg/Quaternion')(x=0.0, y=0.0, z=0.0, w=1.0)),
+        scale=types('geometry_msgs/msg/Vector3')(x=0.1, y=0.1, z=0.1),
+        color=types('std_msgs/msg/ColorRGBA')(r=1.0, g=0.0, b=0.0, a=1.0),
+        lifetime=types('builtin_interfaces/msg/Duration')(sec=0, nanosec=0),
+        frame_locked=False, points=[point(x=float(x), y=float(y), z=0.0) for x, y in points],
+        colors=[], texture_resource='',
+        texture=types('sensor_msgs/msg/CompressedImage')(
+            header=header, format='', data=np.zeros(0, dtype=np.uint8)),
+        uv_coordinates=[], text='', mesh_resource='',
+        mesh_file=types('visualization_msgs/msg/MeshFile')(
+            filename='', data=np.zeros(0, dtype=np.uint8)),
+        mesh_use_embedded_materials=False)
+
+
+def graph_markers_message(types: MessageTypes, stamp: float, ids: np.ndarray,
+                          positions: np.ndarray, frame_id: str = 'map'):
+    """A MarkerArray as slam_toolbox's publishGraph builds it: DELETEALL, one SPHERE per vertex
+    (namespace `slam_toolbox`, id = vertex id, identity orientation), then the edges as a
+    LINE_LIST in `slam_toolbox_edges` (here between consecutive vertices)."""
+    header = header_message(types, stamp, frame_id)
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    markers = [_marker(types, header, '', 0, MARKER_SPHERE, MARKER_DELETEALL)]
+    markers += [_marker(types, header, SLAM_TOOLBOX_NAMESPACE, int(vertex), MARKER_SPHERE,
+                        MARKER_ADD, tuple(position))
+                for vertex, position in zip(np.asarray(ids).tolist(), positions)]
+    edges = [tuple(point) for pair in zip(positions[:-1], positions[1:]) for point in pair]
+    markers.append(_marker(types, header, 'slam_toolbox_edges', 0, MARKER_LINE_LIST, MARKER_ADD,
+                           points=edges))
+    return types(MARKER_ARRAY_TYPE)(markers=markers)

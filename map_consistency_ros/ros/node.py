@@ -20,6 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import asdict
 from concurrent.futures import TimeoutError as FutureTimeout
 
 import rclpy
@@ -49,7 +50,8 @@ from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, s
 from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
                                                  unknown_names)
 from map_consistency_ros.core.posegraph import tuning_problem
-from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                              PoseSample, Scan)
 from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
@@ -64,6 +66,10 @@ RELIABLE = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
                       history=HistoryPolicy.KEEP_LAST)
 SINGLE_POSES = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
                           history=HistoryPolicy.KEEP_LAST)
+# slam_toolbox publishes its graph markers reliable with depth 1; every snapshot counts (the
+# bridge chains its headings from one to the next), so keep a few while the node is busy.
+GRAPH = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                   history=HistoryPolicy.KEEP_LAST)
 # Parameters every rclpy node has, and per-topic QoS overrides: not ours, not unknown.
 _FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 _SHUTDOWN_ANSWER_SECONDS = 0.2  # spinning after a stop request, for pending answers to go out
@@ -111,7 +117,9 @@ class MapConsistencyNode(Node):
         self._stop = threading.Event()
         # queued records with their arrival (time.monotonic), for the update latency
         self._scans: deque[tuple[float, Scan]] = deque()
-        self._poses: deque[tuple[float, PoseSample]] = deque()
+        # single poses and graph snapshots, in arrival order: the slam_toolbox bridge's
+        # association and heading chain depend on it
+        self._poses: deque[tuple[float, PoseSample | GraphSnapshot]] = deque()
         self._estimate: tuple[float, KeyframeEstimate] | None = None
         self._constraints: tuple[float, Constraints] | None = None
         self._jobs: deque[tuple[Callable[[], object], Future]] = deque()
@@ -150,10 +158,14 @@ class MapConsistencyNode(Node):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_scans_lost))
         poses = MutuallyExclusiveCallbackGroup()
         pose_type = messages.POSE_SOURCE_TYPES[feed_settings.pose_source]
-        if feed_settings.single_poses:
+        if feed_settings.pose_source != 'path':
             self.create_subscription(message_class(pose_type), 'pose',
                                      lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
                                      callback_group=poses)
+            if feed_settings.slam_toolbox:
+                self.create_subscription(message_class(messages.MARKER_ARRAY_TYPE),
+                                         'graph_visualization', self._on_graph, GRAPH,
+                                         callback_group=poses)
         else:
             self.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
                                      callback_group=poses)
@@ -238,13 +250,19 @@ class MapConsistencyNode(Node):
             self._wake.set()
 
     def _on_pose(self, msgtype: str, msg) -> None:
-        record = self._convert('pose', msgtype, msg)
+        self._queue_pose(self._convert('pose', msgtype, msg))
+
+    def _on_graph(self, msg) -> None:
+        self._queue_pose(self._convert('graph_visualization', messages.MARKER_ARRAY_TYPE, msg))
+
+    def _queue_pose(self, record: PoseSample | GraphSnapshot | None) -> None:
+        """Queue a single pose or graph snapshot (all kept, in order; None: it was bad)."""
         if record is not None:
             with self._lock:
                 if len(self._poses) >= self._queue_limit:
                     self._poses.popleft()
                     self._problems += 1
-                    self._last_problem = ('pose: queue full, the oldest pose dropped',
+                    self._last_problem = ('pose: queue full, the oldest pose or graph dropped',
                                           time.monotonic())
                 self._poses.append((time.monotonic(), record))
             self._wake.set()
@@ -305,11 +323,12 @@ class MapConsistencyNode(Node):
 
     def _apply(self, record):
         """Apply one record through the feed: (the update or None, whether it reset)."""
-        if isinstance(record, KeyframeEstimate):
+        if isinstance(record, (KeyframeEstimate, GraphSnapshot)):
             self._frame_id = self._settings.frame_id or record.frame_id or 'map'
         applied = self._feed.apply(record)
         topic = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
-                 Constraints: 'constraints'}[type(record)]
+                 Constraints: 'constraints',
+                 GraphSnapshot: 'graph_visualization'}[type(record)]
         for warning in applied.warnings:
             self._input_problem(topic, warning)
         if applied.reset:
@@ -409,7 +428,10 @@ class MapConsistencyNode(Node):
                             update_latency_s=self._latency, phi=self._phi, timing=self._timing,
                             lost_scans=self._health().lost_scans,
                             keyframes=snapshot.keyframe_count,
-                            judged_keyframes=judged.keyframe_count))
+                            judged_keyframes=judged.keyframe_count,
+                            inconsistent_stamps=judged.stamps[assessment.result.inconsistent]))
+        if self._feed.bridge_counts is not None:
+            content['slam_toolbox_bridge'] = asdict(self._feed.bridge_counts)
         return plain(content)
 
     def _health(self) -> MonitorHealth:

@@ -146,3 +146,54 @@ def test_sensor_model_fields_survive_a_scan_message():
     back = messages.scan_to_numpy(msg, 100.0)[2]
     assert back.range_min == pytest.approx(0.02)
     assert back.max_range == pytest.approx(5.6)
+
+
+def _graph(ids, positions):
+    return messages.graph_markers_message(message_class, 12.5, np.asarray(ids),
+                                          np.asarray(positions, dtype=np.float64))
+
+
+def test_graph_markers_round_trip_on_real_positions(slam_toolbox_stream):
+    _, ids, positions = slam_toolbox_stream.snapshots[-1]
+    msg = _graph(ids, positions)
+    # as slam_toolbox's publishGraph: DELETEALL, the vertices, then the edges elsewhere
+    assert msg.markers[0].action == messages.MARKER_DELETEALL
+    assert {m.ns for m in msg.markers[1:]} == {'slam_toolbox', 'slam_toolbox_edges'}
+    record = messages.to_record(messages.MARKER_ARRAY_TYPE, msg)
+    np.testing.assert_array_equal(record.ids, ids)
+    np.testing.assert_allclose(record.positions, positions, atol=1e-12)
+    assert record.frame_id == 'map'
+
+
+def test_graph_markers_honour_deleteall_and_delete():
+    msg = _graph([0, 1, 2], [[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]])
+    stale = _graph([7, 8], [[5.0, 5.0], [6.0, 5.0]])
+    # vertices before a DELETEALL are gone; a DELETE removes its vertex
+    msg.markers = stale.markers[1:3] + msg.markers
+    deleted = _graph([1], [[0.0, 0.0]]).markers[1]
+    deleted.action = messages.MARKER_DELETE
+    msg.markers.append(deleted)
+    ids, positions, _ = messages.graph_markers_to_numpy(msg)
+    np.testing.assert_array_equal(ids, [0, 2])
+    np.testing.assert_allclose(positions, [[0.0, 0.0], [2.0, 1.0]])
+    empty = _graph([], np.zeros((0, 2)))
+    ids, positions, _ = messages.graph_markers_to_numpy(empty)
+    assert ids.shape == (0,) and positions.shape == (0, 2)
+
+
+def _broken(change):
+    msg = _graph([0, 1, 2], [[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]])
+    change(msg)
+    return msg
+
+
+@pytest.mark.parametrize('change, message', [
+    (lambda m: m.markers.pop(0), 'no DELETEALL'),
+    (lambda m: setattr(m.markers[2].pose.position, 'x', math.nan), 'vertex 1 has a non-finite'),
+    (lambda m: setattr(m.markers[3], 'id', 0), r'vertex ids \[0\] appear more than once'),
+    (lambda m: setattr(m.markers[1], 'type', messages.MARKER_LINE_LIST), 'a vertex is an added '
+                                                                         'SPHERE'),
+])
+def test_bad_graph_markers_are_refused(change, message):
+    with pytest.raises(ValueError, match=message):
+        messages.to_record(messages.MARKER_ARRAY_TYPE, _broken(change))

@@ -1,0 +1,131 @@
+"""The node in its own process with a probe node beside it, and the node-equals-replay check
+(test_pose_sources.py, test_slam_toolbox_source.py)."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path as FilePath
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+
+from map_consistency_ros.cli.main import main
+from map_consistency_ros.ros.conversions import message_class
+
+REPO = FilePath(__file__).resolve().parents[2]
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SETTLE_SECONDS = 1.0
+
+
+@dataclass
+class NodeUnderTest:
+    """The node's process and a probe node that publishes its inputs and keeps its reports."""
+
+    process: subprocess.Popen
+    probe: Node
+    reports: list[dict] = field(default_factory=list)
+    publishers: list = field(default_factory=list)
+
+    def publisher(self, msgtype: str, topic: str, qos):
+        publisher = self.probe.create_publisher(message_class(msgtype), topic, qos)
+        self.publishers.append(publisher)
+        return publisher
+
+    def wait_for_subscriptions(self, timeout: float = 30.0) -> None:
+        """Until the node subscribes to every publisher (or `timeout` seconds), then a moment.
+
+        The probe sees the node's subscription before the node's side has matched the probe's
+        publisher; volatile messages sent in between are lost, and a lost slam_toolbox `pose`
+        shifts every later vertex (what replay --publish's settle time is for, too)."""
+        deadline = time.monotonic() + timeout
+        while not all(p.get_subscription_count() for p in self.publishers) and (
+                time.monotonic() < deadline):
+            time.sleep(0.05)
+        time.sleep(SETTLE_SECONDS)
+
+    def replay_and_final_report(self, bag: FilePath, out: FilePath,
+                                timeout: float = 60.0) -> tuple[int, dict, dict]:
+        """(replay's exit code, replay's report of `bag`, the node's report of the same state).
+
+        The node's report is its last one once it judged as many scans as replay, with the
+        second stage caught up (it may lag while input streams in)."""
+        code = main(['replay', str(bag), '--quiet', '--report', str(out)])
+        report = json.loads(out.read_text())
+        scans = report['summary']['scans']
+        deadline = time.monotonic() + timeout
+        while not (self.reports and self.reports[-1]['scans'] == scans
+                   and self.reports[-1]['judged_keyframes'] == self.reports[-1]['keyframes']
+                   ) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        return code, report, self.reports[-1] if self.reports else {}
+
+
+@pytest.fixture
+def node_under_test(tmp_path, monkeypatch):
+    """`start(*ros_args)`: the node in its own process (random ROS_DOMAIN_ID, localhost only)
+    with `--ros-args ros_args`, and the probe; both stopped after the test."""
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 200)))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path / 'ros_log'))
+    started: list[tuple[NodeUnderTest, Context, SingleThreadedExecutor, threading.Thread]] = []
+
+    def start(*ros_args: str) -> NodeUnderTest:
+        process = subprocess.Popen(
+            [sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args', *ros_args],
+            cwd=REPO, env=dict(os.environ), stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL)
+        context = Context()
+        rclpy.init(context=context)
+        node = NodeUnderTest(process, Node('probe', context=context))
+        node.probe.create_subscription(String, '/map_consistency/report',
+                                       lambda m: node.reports.append(json.loads(m.data)),
+                                       LATCHED)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node.probe)
+        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner.start()
+        started.append((node, context, executor, spinner))
+        return node
+
+    yield start
+    for node, context, executor, spinner in started:
+        executor.shutdown()
+        node.probe.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=5)
+        node.process.terminate()
+        node.process.wait(timeout=10)
+
+
+def assert_node_agrees(node_report: dict, report: dict, code: int) -> None:
+    """The node says what replay says: the paper's figures and the two-stage verdict."""
+    expected = report['summary']
+    assert code == (0 if report['verdict'] == 'consistent' else 1)
+    for key, value in expected.items():
+        if key != 'consistent':
+            assert node_report.get(key) == value, key
+    assert node_report['paper_consistent'] == expected['consistent']
+    assert node_report['consistent'] == (report['verdict'] == 'consistent')
+    assert node_report['summary_line'] == report['summary_line']
+    keyframe_stamps = np.array(report['keyframe_stamps'])
+    np.testing.assert_allclose(node_report['misaligned_scans'],
+                               keyframe_stamps[report['misaligned_scans']], atol=1e-6)
+
+
+@pytest.fixture
+def node_agrees():
+    """assert_node_agrees(node_report, replay_report, replay_exit_code)."""
+    return assert_node_agrees
