@@ -497,7 +497,7 @@ def run(args: argparse.Namespace) -> int:
                              args.local_alphas, args.flag_windows)
     baseline = runner.sweep_baseline(measured, settings.baseline, args.quantiles)
     with ProgressBar('two-stage verdicts', enabled=not args.quiet) as progress:
-        two_stage = runner.sweep_two_stage(maps, settings, args.two_stage_alphas,
+        two_stage = runner.sweep_two_stage(maps, measured, settings, args.two_stage_alphas,
                                            args.tolerances, args.workers, progress)
     whole = None
     if not args.no_whole_logs:

@@ -290,20 +290,22 @@ def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
     flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
     candidates = np.flatnonzero(result.failed & flagged)
     order = np.argsort(-result.statistic[candidates], kind='stable')
-    return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)
+    return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)[0]
 
 
 def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
-                   min_depth: float = 0.0) -> np.ndarray:
+                   min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
-    scales inside the other scan's polygon."""
-    points = []
+    scales inside the other scan's polygon, and the scan each belongs to (M,)."""
+    points, owners = [], []
     for pair in rows:
         i, j = (int(v) for v in result.pairs[pair])
         limit = min_depth * max(result.scales[i], result.scales[j])
         of_points_of_j, of_points_of_i = point_distances(scans, i, j)
-        points.append(scans.endpoints[j][of_points_of_j > limit])
-        points.append(scans.endpoints[i][of_points_of_i > limit])
+        for scan, depth in ((j, of_points_of_j), (i, of_points_of_i)):
+            deep = scans.endpoints[scan][depth > limit]
+            points.append(deep)
+            owners.append(np.full(len(deep), scan))
     if not points:
-        return np.zeros((0, 2))
-    return np.concatenate(points)
+        return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+    return np.concatenate(points), np.concatenate(owners)

@@ -35,7 +35,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   Progress, check_consistency,
                                                   inconsistent_endpoints, pair_endpoints,
                                                   robust_statistic)
-from map_consistency_ros.core.measure import pair_measures, point_distances
+from map_consistency_ros.core.measure import pair_measures
 from map_consistency_ros.core.parameters import parameter, specs
 from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
                                                    register_submaps, surface_points)
@@ -356,19 +356,12 @@ def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> n
     return flagged
 
 
-def _changes(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+def _changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
              settings: ExplanationSettings) -> tuple[ChangedPlace, ...]:
-    points, owners = [], []
-    for i, j in pairs:
-        limit = settings.change_depth * max(result.scales[i], result.scales[j])
-        of_j, of_i = point_distances(scans, int(i), int(j))
-        for scan, depth in ((j, of_j), (i, of_i)):
-            deep = scans.endpoints[scan][depth > limit]
-            points.append(deep)
-            owners.append(np.full(len(deep), scan))
-    if not points or not sum(len(part) for part in points):
+    """The deep end points of the change pairs `rows` of `result`, grouped into places."""
+    points, owners = pair_endpoints(scans, result, rows, settings.change_depth)
+    if not len(points):
         return ()
-    points, owners = np.concatenate(points), np.concatenate(owners)
     cells = np.floor(points / settings.change_cell).astype(np.int64)
     unique, cell_of_point = np.unique(cells, axis=0, return_inverse=True)
     cell_of_point = cell_of_point.reshape(-1)
@@ -485,7 +478,7 @@ def explain(scans: ScanSet, result: ConsistencyResult,
                              registrations.covariances[task_of_pair], task_of_pair, flagged,
                              settings)
     flagged = _region_scans(misalignments, scans.scan_count)
-    changes = _changes(scans, result, pairs[codes == _CLASS_CODE[CHANGE]], settings)
+    changes = _changes(scans, result, rows[codes == _CLASS_CODE[CHANGE]], settings)
     return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
                       pair_corrections=transforms, pair_displacements=displacement,
                       misaligned_scans=flagged, misalignments=misalignments, changes=changes)
@@ -515,4 +508,4 @@ def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int 
     bad = np.isin(assessment.pair_classes, (_CLASS_CODE[MISALIGNED], _CLASS_CODE[UNREGISTERED]))
     keep = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
     chosen = rows[keep][np.argsort(-result.statistic[rows[keep]], kind='stable')[:max_pairs]]
-    return pair_endpoints(scans, result, chosen, min_depth)
+    return pair_endpoints(scans, result, chosen, min_depth)[0]

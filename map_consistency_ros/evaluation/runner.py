@@ -24,7 +24,8 @@ from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoo
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
                                                   evaluate_pairs, local_pairs, local_scales)
-from map_consistency_ros.core.explanation import ExplanationSettings, explain
+from map_consistency_ros.core.explanation import (ExplanationSettings, RegistrationCache,
+                                                  explain)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.spatial_index import candidate_pairs
@@ -74,13 +75,14 @@ class RuntimeRow:
 
 
 @lru_cache(maxsize=8)
-def _log(path: Path) -> CarmenLog:
+def cached_log(path: Path) -> CarmenLog:
+    """The log at `path`, read once per process (a pool worker judges many maps of it)."""
     return read_carmen_log(path)
 
 
 def map_scans(suite_map: SuiteMap, max_range: float | None) -> ScanSet:
     """The map's scans placed at its poses."""
-    log = _log(suite_map.log_path)
+    log = cached_log(suite_map.log_path)
     return ScanSet.from_ranges(log.ranges[suite_map.scan_indices], suite_map.poses,
                                sensor_model(log, max_range=max_range))
 
@@ -167,33 +169,38 @@ def sweep_baseline(measured: Sequence[MeasuredMap], base: BaselineParameters,
     return np.concatenate(rows)
 
 
-def two_stage_flags(suite_map: SuiteMap, settings: MeasureSettings, alphas: Sequence[float],
-                    tolerances: Sequence[float]) -> np.ndarray:
+def two_stage_flags(item: tuple[SuiteMap, MeasuredMap], settings: MeasureSettings,
+                    alphas: Sequence[float], tolerances: Sequence[float]) -> np.ndarray:
     """(A, T) bool: both stages flag the map at pairwise level alphas[a] and misalignment
-    tolerance tolerances[t] (every other setting at its default)."""
+    tolerance tolerances[t] (every other setting at its default), from its measured pairs.
+
+    The registrations do not depend on either setting: one cache serves the whole sweep.
+    """
+    suite_map, measured = item
     scans = map_scans(suite_map, settings.max_range)
-    reference = scans.with_poses(suite_map.reference_poses)
-    keep = settings.test.trim_largest
-    local = pair_measures(reference, local_pairs(reference, settings.test.local_window), keep)
-    measures = pair_measures(scans, candidate_pairs(scans.extents), keep)
+    registrations = RegistrationCache()
     flags = np.zeros((len(alphas), len(tolerances)), dtype=bool)
     for row, alpha in enumerate(alphas):
         parameters = replace(settings.test, alpha=alpha)
-        result = evaluate_pairs(measures, local_scales(local, scans.scan_count, parameters),
-                                scans.scan_count, parameters)
+        result = evaluate_pairs(
+            measured.measures, local_scales(measured.local, scans.scan_count, parameters),
+            scans.scan_count, parameters)
         for column, tolerance in enumerate(tolerances):
             flags[row, column] = not explain(
-                scans, result, ExplanationSettings(misalignment_tolerance=tolerance)).consistent
+                scans, result, ExplanationSettings(misalignment_tolerance=tolerance),
+                cache=registrations).consistent
     return flags
 
 
-def sweep_two_stage(maps: Sequence[SuiteMap], settings: MeasureSettings, alphas: Sequence[float],
+def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
+                    settings: MeasureSettings, alphas: Sequence[float],
                     tolerances: Sequence[float], workers: int | None = None,
                     progress: Progress | None = None) -> np.ndarray:
-    """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite."""
+    """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite
+    (`measured`: measure_suite of `maps`)."""
     truth = np.array([item.inconsistent for item in maps], dtype=bool)
-    flags = pooled(two_stage_flags, maps, (settings, tuple(alphas), tuple(tolerances)),
-                    workers, progress)
+    flags = pooled(two_stage_flags, list(zip(maps, measured)),
+                   (settings, tuple(alphas), tuple(tolerances)), workers, progress)
     rows = []
     for row, alpha in enumerate(alphas):
         for column, tolerance in enumerate(tolerances):
@@ -227,7 +234,7 @@ def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | 
 
 
 def _keyframe_scans(log_path: Path, suite: SuiteParameters, max_range: float | None) -> ScanSet:
-    log = _log(log_path)
+    log = cached_log(log_path)
     frames = keyframes(log.laser_poses, suite.keyframe_distance, suite.keyframe_angle)
     return ScanSet.from_ranges(log.ranges[frames], log.laser_poses[frames],
                                sensor_model(log, max_range=max_range))

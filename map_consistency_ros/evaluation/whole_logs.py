@@ -175,19 +175,23 @@ def build(data: Path, datasets: list[str], seams: int, seed: int) -> list[WholeL
                    for item in false_loop_maps(dataset, data, seed)]
 
 
+def map_scans(whole: WholeLogMap) -> ScanSet:
+    """The map's scans placed at its poses."""
+    log = runner.cached_log(whole.log_path)
+    return ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+
+
 def assess(whole: WholeLogMap, parameters: ConsistencyParameters | None = None,
            settings: ExplanationSettings | None = None) -> tuple[ScanSet, Assessment]:
     """The map's scans and both stages' verdict on them."""
-    log = read_carmen_log(whole.log_path)
-    scans = ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+    scans = map_scans(whole)
     return scans, explain(scans, check_consistency(scans, parameters), settings)
 
 
 def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
           settings: ExplanationSettings, baseline: BaselineParameters) -> WholeLogResult:
     """Both stages at the given settings, the baseline's statistic, and the map's label."""
-    log = read_carmen_log(whole.log_path)
-    scans = ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+    scans = map_scans(whole)
     started = time.perf_counter()
     result = check_consistency(scans, parameters)
     middle = time.perf_counter()

@@ -107,8 +107,9 @@ class MapConsistencyNode(Node):
                                             parameters=self._feed.parameters)
         self._explanation = settings_from_values(ExplanationSettings, values)
         self._registrations = RegistrationCache()  # worker thread only
-        # the last verdict of both stages, the snapshot it judged, and when (time.monotonic)
-        self._verdict: tuple[Assessment, MonitorSnapshot] | None = None
+        # the last verdict of both stages, the snapshot it judged and its scans (the markers
+        # draw from them), and when (time.monotonic)
+        self._verdict: tuple[Assessment, MonitorSnapshot, ScanSet] | None = None
         self._explained_at = -math.inf
         settings = self._settings
         self._queue_limit = self._feed.monitor_settings.max_buffered_scans
@@ -370,7 +371,7 @@ class MapConsistencyNode(Node):
         return (self._snapshot.result is not None
                 and (self._verdict is None or self._verdict[1].result is not self._snapshot.result))
 
-    def _explain(self, explain_now: bool) -> tuple[Assessment, MonitorSnapshot]:
+    def _explain(self, explain_now: bool) -> tuple[Assessment, MonitorSnapshot, ScanSet]:
         """Both stages' verdict on the current snapshot, or the last one while keyframes stream
         in faster than `explanation_period` (worker thread only)."""
         snapshot = self._snapshot
@@ -378,11 +379,12 @@ class MapConsistencyNode(Node):
         if self._verdict is not None and not (explain_now or due):
             return self._verdict
         start = time.perf_counter()
-        assessment = explain(snapshot.scans(), snapshot.result, self._explanation,
+        scans = snapshot.scans()
+        assessment = explain(scans, snapshot.result, self._explanation,
                              cache=self._registrations)
         self._timing['explanation_s'] = time.perf_counter() - start
         self._explained_at = time.monotonic()
-        self._verdict = (assessment, snapshot)
+        self._verdict = (assessment, snapshot, scans)
         return self._verdict
 
     def _publish_verdict(self, changed_at: float, explain_now: bool = False) -> None:
@@ -391,13 +393,13 @@ class MapConsistencyNode(Node):
         snapshot = self._snapshot
         if snapshot.result is None:
             return
-        assessment, judged = self._explain(explain_now)
+        assessment, judged, judged_scans = self._explain(explain_now)
         start = time.perf_counter()
         limit = self._settings.max_marker_pairs
         stamp = self.get_clock().now().to_msg()
         markers = self._marker_updates.changed(
             snapshot, assessment, judged,
-            lambda: misaligned_endpoints(judged.scans(), assessment, limit),
+            lambda: misaligned_endpoints(judged_scans, assessment, limit),
             self._frame_id, stamp)
         built = time.perf_counter()
         if markers.markers:
@@ -420,7 +422,7 @@ class MapConsistencyNode(Node):
         """The machine-readable report of ~/report (the one place it is built): the verdict's
         report of the CLI, scans named by their stamps, and the node's own figures."""
         snapshot = self._snapshot
-        assessment, judged = self._verdict
+        assessment, judged, _ = self._verdict
         content = assessment_report(assessment, judged.stamps)
         content.pop('scans')  # per-scan arrays: the CLI's JSON has room for them, a topic not
         content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
