@@ -113,3 +113,15 @@ def test_every_keeps_record_positions_in_outputs(room_log, tmp_path):
     ids = {int(row[key]) for row in csv.DictReader(pairs.open()) for key in ('i', 'j')}
     assert ids and all(index % 3 == 0 for index in ids)
     assert main(['check', str(path), '--every', '0']) == 2
+
+
+@pytest.mark.parametrize('option,value,message', [
+    ('--misalignment-tolerance', '-1', 'misalignment_tolerance: -1.0 is outside [0, 10]'),
+    ('--gross-fraction', '1.5', 'gross_fraction: 1.5 is outside [0.01, 0.99]'),
+    ('--block', '0', 'block: 0 is outside [1, 1000]'),
+])
+def test_bad_verdict_options_exit_2_with_one_line(room_log, capsys, option, value, message):
+    path, _, _ = room_log()
+    assert main(['check', str(path), '--quiet', option, value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
