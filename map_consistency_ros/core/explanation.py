@@ -28,7 +28,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri
 
 from map_consistency_ros.core import statistics
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
@@ -252,7 +251,7 @@ def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np
         information = np.linalg.inv(covariance[registered])
         delta = correction[registered]
         mahalanobis[registered] = np.einsum('ei,eij,ej->e', delta, information, delta)
-    significant = mahalanobis > chdtri(3, settings.significance)
+    significant = mahalanobis > statistics.chi_square_3_quantile(settings.significance)
     codes = np.full(len(task_of_pair), _CLASS_CODE[CHANGE], dtype=np.int64)
     codes[determined & ~plausible & ~passes] = _CLASS_CODE[UNREGISTERED]
     codes[registered & passes] = _CLASS_CODE[MINOR]

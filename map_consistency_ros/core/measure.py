@@ -248,7 +248,7 @@ def _keep_largest(row: np.ndarray, distance: float) -> None:
         row[slot] = distance
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _pair_kernel(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
                  extents: np.ndarray, angle_min: float, increment: float, full_circle: bool,
                  naive: bool, pairs: np.ndarray, keep: int):

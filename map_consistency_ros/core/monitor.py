@@ -496,7 +496,7 @@ class ConsistencyMonitor:
             ids=order.astype(np.int64), stamps=keyframes.stamps[order],
             poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
             ranges=ranges, model=self._model,
-            laser_offset=self._offset.copy(), result=self._result,
+            laser_offset=self._offset.copy(), result=self._evaluate(),
             buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
             last_update=self._last, **self._loss())
 
@@ -608,7 +608,7 @@ class ConsistencyMonitor:
 
     def _measure(self, changed: np.ndarray, new: np.ndarray) -> int:
         """Measure pairs touching `changed` slots (`new` among them), update the local
-        measures, re-run the tests."""
+        measures; the tests run when the next snapshot is taken."""
         keyframes = self._keyframes
         placed = self._scans(changed, keyframes.poses)
         self._index.update(changed, placed.extents)
@@ -626,11 +626,28 @@ class ConsistencyMonitor:
         rank_of_slot[order] = np.arange(keyframes.count)
         measured += self._update_local(order, rank_of_slot[new])
         # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
-        ranks = None if np.array_equal(order, np.arange(keyframes.count)) else rank_of_slot
-        scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
-        self._result = evaluate_pairs(self._current.measures(ranks), scales, keyframes.count,
-                                      self.parameters, robust=self._current.robust())
+        self._result = None  # the statistics run once per snapshot, not per update
         return measured
+
+    def _evaluate(self) -> ConsistencyResult | None:
+        """The test on the current measures (computed at most once per change).
+
+        The statistics cover every pair of the map; a burst of updates (a Path with late
+        scans, a node catching up) costs one evaluation when its snapshot is taken.
+        """
+        if self._result is None and self.keyframe_count:
+            keyframes = self._keyframes
+            order = keyframes.order()
+            # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
+            ranks = None
+            if not np.array_equal(order, np.arange(keyframes.count)):
+                ranks = np.empty(keyframes.count, dtype=np.int64)
+                ranks[order] = np.arange(keyframes.count)
+            scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
+            self._result = evaluate_pairs(self._current.measures(ranks), scales,
+                                          keyframes.count, self.parameters,
+                                          robust=self._current.robust())
+        return self._result
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
         """Measures at the incremental poses of every pair within the local window."""

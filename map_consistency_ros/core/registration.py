@@ -269,7 +269,7 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
     return cx, cy, matched, determined
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _thin_ranges(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
                  ranges: np.ndarray, cell: float, need_normal: bool):
     """Every submap (scan range) of `ranges` (R, 2) thinned once: submap r owns rows
@@ -293,7 +293,7 @@ def _thin_ranges(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
     return out_points, out_normals, starts, counts
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _register_tasks(references: tuple, queries: tuple, reference_of_task: np.ndarray,
                     query_of_task: np.ndarray, gates: np.ndarray, iterations: int, trim: float,
                     min_matches: int):

@@ -12,10 +12,10 @@ Notation of the paper, used in this module only:
   when each test fails independently with probability p (eqs. 7-8).
 """
 import math
+from statistics import NormalDist
 
 import numpy as np
 from numba import njit
-from scipy.special import ndtri
 
 HALFNORMAL_MEAN_FACTOR = math.sqrt(2.0 / math.pi)
 HALFNORMAL_STD_FACTOR = math.sqrt(1.0 - 2.0 / math.pi)
@@ -31,7 +31,32 @@ def normal_quantile(upper_tail: float) -> float:
     """F^-1(1 - upper_tail) of the standard normal distribution."""
     if not 0.0 < upper_tail < 1.0:
         raise ValueError(f'a tail probability must be in (0, 1), got {upper_tail}')
-    return float(-ndtri(upper_tail))
+    # the standard library's quantile (Wichura's AS241, as scipy's ndtri): scipy.special
+    # alone costs a `check` a quarter of a second of imports
+    return -NormalDist().inv_cdf(upper_tail)
+
+
+def chi_square_3_quantile(upper_tail: float) -> float:
+    """The x with P(X > x) = upper_tail for X chi-square with 3 degrees of freedom.
+
+    Its survival function has the closed form erfc(sqrt(x / 2)) + sqrt(2 x / pi) exp(-x / 2),
+    decreasing in x; bisection finds the quantile to the last bit.
+    """
+    if not 0.0 < upper_tail < 1.0:
+        raise ValueError(f'a tail probability must be in (0, 1), got {upper_tail}')
+
+    def survival(x: float) -> float:
+        return math.erfc(math.sqrt(x / 2.0)) + math.sqrt(2.0 * x / math.pi) * math.exp(-x / 2.0)
+
+    low, high = 0.0, 1.0
+    while survival(high) > upper_tail:
+        low, high = high, 2.0 * high
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        if middle in (low, high):
+            break
+        low, high = (middle, high) if survival(middle) > upper_tail else (low, middle)
+    return high
 
 
 def standardized_inconsistency(distance_sum: np.ndarray, point_count: np.ndarray,

@@ -106,11 +106,14 @@ class MapConsistencyNode(Node):
         self._tuning = settings_from_values(TuningSettings, values,
                                             parameters=self._feed.parameters)
         self._explanation = settings_from_values(ExplanationSettings, values)
-        self._registrations = RegistrationCache()  # worker thread only
+        self._registrations = RegistrationCache()  # replaced under _publishing, used under _explaining
         # the last verdict of both stages, the snapshot it judged and its scans (the markers
         # draw from them), and when (time.monotonic)
         self._verdict: tuple[Assessment, MonitorSnapshot, ScanSet] | None = None
         self._explained_at = -math.inf
+        self._explaining = threading.Lock()  # one explanation at a time (the cache is shared)
+        self._publishing = threading.Lock()  # the worker and the explainer both publish
+        self._explain_wake = threading.Event()
         settings = self._settings
         self._queue_limit = self._feed.monitor_settings.max_buffered_scans
         self._lock = threading.Lock()
@@ -138,6 +141,8 @@ class MapConsistencyNode(Node):
         self._calls = 0  # service calls being answered, for the shutdown to wait for
         self._tuner: threading.Thread | None = None
         self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
+        self._serial = 0  # counts snapshots: a verdict never replaces one of a newer snapshot
+        self._verdict_serial = -1
         self._marker_updates = MarkerUpdates()  # worker thread only
         self._marker_subscribers = 0
 
@@ -172,10 +177,7 @@ class MapConsistencyNode(Node):
                                      callback_group=poses)
         self.create_subscription(message_class(messages.CONSTRAINTS_TYPE), 'constraints',
                                  self._on_constraints, RELIABLE, callback_group=poses)
-        services = ReentrantCallbackGroup()
-        self.create_service(Trigger, '~/check', self._on_check, callback_group=services)
-        self.create_service(Trigger, '~/retune_dcs', self._on_retune, callback_group=services)
-        self.create_service(Trigger, '~/reset', self._on_reset, callback_group=services)
+        self.service_host = self._host_services()
         # a steady timer: diagnostics go on (and turn STALE) when a simulated clock pauses
         self.create_timer(settings.diagnostics_period, self._publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup(),
@@ -183,6 +185,27 @@ class MapConsistencyNode(Node):
         self._worker = threading.Thread(target=self._work, name='map_consistency_worker',
                                         daemon=True)
         self._worker.start()
+        self._explainer = threading.Thread(target=self._explain_loop,
+                                           name='map_consistency_explainer', daemon=True)
+        self._explainer.start()
+
+    def _host_services(self) -> Node:
+        """The node's services on a node of their own, spun by a multi-threaded executor.
+
+        A service waits for the worker (a retune for minutes), so it needs a thread of its own,
+        which the events executor that takes the messages cannot give. The host ignores the
+        command line (a `__node:=` rename would give it this node's name too) and offers the
+        services under this node's resolved names, e.g. /map_consistency/check.
+        """
+        host = Node(f'{self.get_name()}_services', namespace=self.get_namespace(),
+                    context=self.context, use_global_arguments=False,
+                    start_parameter_services=False)
+        services = ReentrantCallbackGroup()
+        for name, callback in (('~/check', self._on_check), ('~/retune_dcs', self._on_retune),
+                               ('~/reset', self._on_reset)):
+            host.create_service(Trigger, self.resolve_service_name(name), callback,
+                                callback_group=services)
+        return host
 
     # -- parameters --------------------------------------------------------------------------
 
@@ -298,13 +321,15 @@ class MapConsistencyNode(Node):
         return records
 
     def _work_once(self) -> None:
+        """Apply what arrived, answer queued jobs, publish the first stage's update."""
         changed_at = None  # arrival of the newest record that changed the map
-        monitor_seconds = 0.0
-        for arrival, record in self._take():
+        records = self._take()
+        taken = time.monotonic()
+        for arrival, record in records:
             summary, reset = self._apply(record)
             if summary is not None or reset:
                 changed_at = arrival
-                monitor_seconds += 0.0 if summary is None else summary.elapsed
+        applied_seconds = time.monotonic() - taken  # every record, changing the map or not
         while self._jobs:
             job, future = self._jobs.popleft()
             try:
@@ -313,14 +338,14 @@ class MapConsistencyNode(Node):
                 future.set_exception(error)
         self._greet_marker_subscribers()
         start = time.perf_counter()
-        self._snapshot = self._feed.monitor.snapshot()
+        self._take_snapshot()
         if changed_at is not None:
-            self._timing = {'monitor_s': monitor_seconds,
+            self._timing = {'queued_s': max(taken - changed_at, 0.0),
+                            'monitor_s': applied_seconds,
                             'snapshot_s': time.perf_counter() - start}
             self._publish_verdict(changed_at)
-        elif self._verdict_behind():
-            # the input paused: explain the last update now
-            self._publish_verdict(time.monotonic(), explain_now=True)
+        if self._verdict_behind():
+            self._explain_wake.set()
 
     def _apply(self, record):
         """Apply one record through the feed: (the update or None, whether it reset)."""
@@ -338,10 +363,12 @@ class MapConsistencyNode(Node):
 
     def _after_reset(self, reason: str) -> None:
         self.get_logger().warning(f'monitor reset: {reason}')
-        self._verdict = None
-        self._registrations = RegistrationCache()
-        self._markers.publish(self._marker_updates.clear(self._frame_id,
-                                                         self.get_clock().now().to_msg()))
+        with self._publishing:
+            self._snapshot, self._serial = self._feed.monitor.snapshot(), self._serial + 1
+            self._verdict, self._verdict_serial = None, self._serial
+            self._markers.publish(self._marker_updates.clear(self._frame_id,
+                                                             self.get_clock().now().to_msg()))
+            self._registrations = RegistrationCache()
         with self._lock:
             self._dds_lost = self._queue_lost = 0
         self._latency = None
@@ -366,34 +393,75 @@ class MapConsistencyNode(Node):
 
     # -- outputs -----------------------------------------------------------------------------
 
+    def _take_snapshot(self) -> None:
+        """The monitor's current state becomes the one published (worker thread)."""
+        snapshot = self._feed.monitor.snapshot()
+        with self._publishing:
+            self._snapshot, self._serial = snapshot, self._serial + 1
+
     def _verdict_behind(self) -> bool:
         """Whether the last verdict judged an older snapshot than the current one."""
         return (self._snapshot.result is not None
                 and (self._verdict is None or self._verdict[1].result is not self._snapshot.result))
 
-    def _explain(self, explain_now: bool) -> tuple[Assessment, MonitorSnapshot, ScanSet]:
-        """Both stages' verdict on the current snapshot, or the last one while keyframes stream
-        in faster than `explanation_period` (worker thread only)."""
-        snapshot = self._snapshot
-        due = time.monotonic() - self._explained_at >= self._settings.explanation_period
-        if self._verdict is not None and not (explain_now or due):
-            return self._verdict
-        start = time.perf_counter()
-        scans = snapshot.scans()
-        assessment = explain(scans, snapshot.result, self._explanation,
-                             cache=self._registrations)
-        self._timing['explanation_s'] = time.perf_counter() - start
+    def _explain(self, snapshot: MonitorSnapshot, cache: RegistrationCache
+                 ) -> tuple[tuple[Assessment, MonitorSnapshot, ScanSet], float]:
+        """Both stages' verdict on `snapshot` and its seconds (any thread; one explanation
+        at a time: `cache` is shared)."""
+        with self._explaining:
+            start = time.perf_counter()
+            scans = snapshot.scans()
+            assessment = explain(scans, snapshot.result, self._explanation, cache=cache)
+            seconds = time.perf_counter() - start
         self._explained_at = time.monotonic()
-        self._verdict = (assessment, snapshot, scans)
-        return self._verdict
+        return (assessment, snapshot, scans), seconds
+
+    def _explain_loop(self) -> None:
+        """The explainer thread: the second stage on the newest snapshot, at most every
+        `explanation_period`, so a long explanation never delays a first-stage update."""
+        while not self._stop.is_set():
+            wait = self._explained_at + self._settings.explanation_period - time.monotonic()
+            if wait > 0.0:
+                self._stop.wait(wait)
+                continue
+            if not self._verdict_behind():
+                self._explain_wake.wait(timeout=0.5)
+                self._explain_wake.clear()
+                continue
+            with self._publishing:
+                snapshot, serial, cache = self._snapshot, self._serial, self._registrations
+            try:
+                verdict, seconds = self._explain(snapshot, cache)
+                with self._publishing:
+                    if serial > self._verdict_serial:  # not overtaken by ~/check or a reset
+                        self._verdict, self._verdict_serial = verdict, serial
+                        self._timing['explanation_s'] = seconds
+                        self._publish_outputs(None)
+            except Exception as error:  # noqa: BLE001 - the explainer must outlive any bug
+                self.get_logger().error(f'explanation failed: {error!r}')
 
     def _publish_verdict(self, changed_at: float, explain_now: bool = False) -> None:
-        """Markers, ~/consistent, ~/report and /diagnostics (worker thread only) for a change
-        whose input arrived at `changed_at` (time.monotonic)."""
+        """Markers, ~/consistent, ~/report and /diagnostics (worker thread) for a change whose
+        input arrived at `changed_at` (time.monotonic): the first stage of the current snapshot
+        with the newest second-stage verdict, which the explainer brings up to date.
+        `explain_now`, or no verdict yet: the second stage first, on this thread."""
         snapshot = self._snapshot
         if snapshot.result is None:
             return
-        assessment, judged, judged_scans = self._explain(explain_now)
+        if explain_now or self._verdict is None:
+            serial = self._serial
+            verdict, seconds = self._explain(snapshot, self._registrations)
+            with self._publishing:
+                self._verdict, self._verdict_serial = verdict, serial
+                self._timing['explanation_s'] = seconds
+        with self._publishing:
+            self._publish_outputs(changed_at)
+
+    def _publish_outputs(self, changed_at: float | None) -> None:
+        """Publish the current snapshot with the newest verdict (under _publishing);
+        `changed_at`: the arrival of the input this answers, None for a new second stage."""
+        snapshot = self._snapshot
+        assessment, judged, judged_scans = self._verdict
         start = time.perf_counter()
         limit = self._settings.max_marker_pairs
         stamp = self.get_clock().now().to_msg()
@@ -406,7 +474,8 @@ class MapConsistencyNode(Node):
             self._markers.publish(markers)
         self._consistent.publish(Bool(data=assessment.consistent))
         self._timing.update(markers_s=built - start, publish_s=time.perf_counter() - built)
-        self._latency = time.monotonic() - changed_at
+        if changed_at is not None:
+            self._latency = time.monotonic() - changed_at
         self._report.publish(String(data=json.dumps(self._report_dict())))
         self._publish_diagnostics()
 
@@ -415,7 +484,8 @@ class MapConsistencyNode(Node):
         updates carry only what changed (worker thread only)."""
         count = self._markers.get_subscription_count()
         if count > self._marker_subscribers:
-            self._markers.publish(self._marker_updates.all())
+            with self._publishing:
+                self._markers.publish(self._marker_updates.all())
         self._marker_subscribers = count
 
     def _report_dict(self) -> dict:
@@ -493,7 +563,7 @@ class MapConsistencyNode(Node):
     def _check(self) -> tuple[bool, str]:
         """Measure every pair again and publish (worker thread)."""
         summary = self._feed.monitor.recompute()
-        self._snapshot = self._feed.monitor.snapshot()
+        self._take_snapshot()
         result = self._snapshot.result
         if result is None:
             return False, 'no keyframes yet: no trajectory pose matches a scan'
@@ -514,7 +584,7 @@ class MapConsistencyNode(Node):
         keyframes = self._feed.monitor.keyframe_count
         self._feed.reset('~/reset service')
         self._after_reset('~/reset service')
-        self._snapshot = self._feed.monitor.snapshot()
+        self._take_snapshot()
         self._publish_diagnostics()
         return True, f'reset: {keyframes} keyframes forgotten'
 
@@ -589,14 +659,35 @@ class MapConsistencyNode(Node):
             return self._calls > 0
 
     @property
+    def executor_kind(self) -> str:
+        """The executor the node's messages need (NodeSettings.executor)."""
+        return self._settings.executor
+
+    @property
     def busy(self) -> bool:
         """Whether a retune or an update is still running (neither can be interrupted)."""
-        return (self._tuner is not None and self._tuner.is_alive()) or self._worker.is_alive()
+        return ((self._tuner is not None and self._tuner.is_alive()) or self._worker.is_alive()
+                or self._explainer.is_alive())
 
     def destroy_node(self) -> None:
         self.begin_shutdown()
         self._worker.join(timeout=_SHUTDOWN_ANSWER_SECONDS)
+        self._explainer.join(timeout=_SHUTDOWN_ANSWER_SECONDS)
+        self.service_host.destroy_node()
         super().destroy_node()
+
+
+def _message_executor(kind: str):
+    """The executor that takes the node's messages (NodeSettings.executor)."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    return MultiThreadedExecutor(num_threads=4)
+
+
+def _spin_services(executor: MultiThreadedExecutor, done: threading.Event) -> None:
+    while not done.is_set() and executor.context.ok():
+        executor.spin_once(timeout_sec=0.05)
 
 
 def _spin_until(executor: MultiThreadedExecutor, stop: threading.Event) -> None:
@@ -622,8 +713,14 @@ def main(args: list[str] | None = None) -> int:
         except (ParameterException, ValueError) as error:
             print(f'map_consistency: bad parameter: {error}', file=sys.stderr)
             return 2
-        executor = MultiThreadedExecutor(num_threads=6)
+        executor = _message_executor(node.executor_kind)
         executor.add_node(node)
+        service_executor = MultiThreadedExecutor(num_threads=4)
+        service_executor.add_node(node.service_host)
+        services_done = threading.Event()
+        service_thread = threading.Thread(target=_spin_services, name='map_consistency_services',
+                                          args=(service_executor, services_done), daemon=True)
+        service_thread.start()
         _spin_until(executor, stop)
         node.begin_shutdown()
         # waiting calls fail at once; spin while their answers go out
@@ -632,6 +729,9 @@ def main(args: list[str] | None = None) -> int:
         while time.monotonic() < deadline and (node.answering or not answered):
             answered = not node.answering
             executor.spin_once(timeout_sec=0.02)
+        services_done.set()
+        service_thread.join(timeout=0.2)
+        service_executor.shutdown(timeout_sec=0.1)
         executor.shutdown(timeout_sec=0.1)
     except ExternalShutdownException:
         pass

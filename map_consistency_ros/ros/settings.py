@@ -21,6 +21,7 @@ from map_consistency_ros.core.parameters import markdown_table, parameter, specs
 from map_consistency_ros.core.tuning import TuningSettings
 
 RELIABILITIES = ('best_effort', 'reliable')
+EXECUTORS = ('events', 'multi_threaded')
 
 
 @dataclass(frozen=True)
@@ -47,9 +48,15 @@ class NodeSettings:
     service_timeout: float = parameter(60.0, 'longest wait of a service for the worker', 's',
                                        (0.1, 3600.0))
     explanation_period: float = parameter(
-        1.0, 'while keyframes stream in, the verdict\'s second stage (misalignment or change) '
-        'runs at most this often; it always runs when the input pauses and on ~/check', 's',
+        1.0, 'the verdict\'s second stage (misalignment or change) runs on a thread of its '
+        'own, on the newest map, at most this often (at once on ~/check); first-stage updates '
+        'never wait for it', 's',
         (0.0, 3600.0))
+    executor: str = parameter(
+        'events', "how the node takes its messages: 'events' (rclpy's C++ events executor, "
+        "a fraction of the Python work per message) or 'multi_threaded' (rclpy's Python "
+        'executor); services are answered on threads of their own either way',
+        choices=EXECUTORS)
 
 
 # (title, settings class) in the order of the parameter file

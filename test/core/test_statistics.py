@@ -45,6 +45,25 @@ def test_normal_quantile_matches_scipy_and_rejects_bad_levels():
             statistics.normal_quantile(bad)
 
 
+@pytest.mark.parametrize('tail', [1e-12, 1e-9, 1e-6, 1e-3, 0.05, 0.5, 0.99])
+def test_normal_quantile_matches_scipy_in_both_tails(tail):
+    assert statistics.normal_quantile(tail) == pytest.approx(stats.norm.isf(tail), rel=1e-13,
+                                                             abs=1e-15)
+
+
+@pytest.mark.parametrize('tail', [1e-12, 1e-9, 1e-6, 1e-3, 0.05, 0.5, 0.99])
+def test_chi_square_3_quantile_matches_scipy(tail):
+    quantile = statistics.chi_square_3_quantile(tail)
+    assert quantile == pytest.approx(stats.chi2.isf(tail, 3), rel=1e-10)
+    assert stats.chi2.sf(quantile, 3) == pytest.approx(tail, rel=1e-8)
+
+
+@pytest.mark.parametrize('bad', [0.0, 1.0, -0.1, float('nan')])
+def test_chi_square_3_quantile_rejects_bad_levels(bad):
+    with pytest.raises(ValueError, match='tail probability'):
+        statistics.chi_square_3_quantile(bad)
+
+
 def _scipy_critical_count(trials: int, probability: float, alpha: float) -> int:
     # eq. 7 literally: the smallest nu whose upper tail P(X > nu) is at most alpha.
     tails = stats.binom.sf(np.arange(trials + 1), trials, probability)
