@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from map_consistency_ros.core import statistics
-from map_consistency_ros.core.measure import PairMeasures, pair_measures, point_distances
+from map_consistency_ros.core.measure import PairMeasures, pair_measures, pairs_point_distances
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.spatial_index import candidate_pairs, extents_overlap
@@ -297,15 +297,11 @@ def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
                    min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
     scales inside the other scan's polygon, and the scan each belongs to (M,)."""
-    points, owners = [], []
-    for pair in rows:
-        i, j = (int(v) for v in result.pairs[pair])
-        limit = min_depth * max(result.scales[i], result.scales[j])
-        of_points_of_j, of_points_of_i = point_distances(scans, i, j)
-        for scan, depth in ((j, of_points_of_j), (i, of_points_of_i)):
-            deep = scans.endpoints[scan][depth > limit]
-            points.append(deep)
-            owners.append(np.full(len(deep), scan))
-    if not points:
+    pairs = result.pairs[np.asarray(rows, dtype=np.int64)]
+    if not len(pairs):
         return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-    return np.concatenate(points), np.concatenate(owners)
+    depth = pairs_point_distances(scans, pairs)  # (P, 2, K): points of j, then of i
+    limit = min_depth * np.maximum(result.scales[pairs[:, 0]], result.scales[pairs[:, 1]])
+    pair, side, beam = np.nonzero(depth > limit[:, None, None])
+    owners = pairs[pair, 1 - side]
+    return scans.endpoints[owners, beam], owners

@@ -38,7 +38,7 @@ from map_consistency_ros.core.measure import pair_measures
 from map_consistency_ros.core.parameters import parameter, specs
 from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
                                                    register_submaps, surface_points)
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet
 
 MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
 PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)
@@ -219,16 +219,11 @@ def _corrected_pairs_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.n
                           transforms: np.ndarray) -> np.ndarray:
     """Whether each pair (i, j) passes the pairwise test with j moved by its transform."""
     first, second = pairs[:, 0], pairs[:, 1]
-    moved = scans.sensor_poses[second].copy()
-    moved[:, :2] = _apply(transforms, moved[:, None, :2])[:, 0]
-    moved[:, 2] += transforms[:, 2]
-    poses = np.empty((2 * len(pairs), 3))
-    poses[0::2], poses[1::2] = scans.sensor_poses[first], moved
-    ranges = np.empty((2 * len(pairs), scans.ranges.shape[1]))
-    ranges[0::2], ranges[1::2] = scans.ranges[first], scans.ranges[second]
-    valid = np.empty(ranges.shape, dtype=bool)
-    valid[0::2], valid[1::2] = scans.valid[first], scans.valid[second]
-    placed = ScanSet(sensor_poses=poses, ranges=ranges, valid=valid, model=scans.model)
+    fixed, moved = scans.take(first), scans.moved(second, transforms)
+    # pair k is scans (2k, 2k + 1) of one set: fixed i and moved j side by side
+    placed = ScanSet.from_parts(scans.model, **{
+        name: np.stack([getattr(fixed, name), getattr(moved, name)], axis=1).reshape(
+            -1, *getattr(fixed, name).shape[1:]) for name in SCAN_ARRAYS})
     index = np.arange(len(pairs))
     measures = pair_measures(placed, np.stack([2 * index, 2 * index + 1], axis=1),
                              keep_largest=max(result.parameters.trim_largest, 1))

@@ -318,14 +318,31 @@ def point_distances(scans: ScanSet, i: int, j: int) -> tuple[np.ndarray, np.ndar
 
     Zero where the end point is invalid or outside the other polygon.
     """
-    for index in (i, j):
-        if not 0 <= index < scans.scan_count:
-            raise ValueError(f'scan index {index} out of range [0, {scans.scan_count})')
-    model = scans.model
-    distances = np.zeros((2, scans.ranges.shape[1]))
-    for row, (polygon, other) in enumerate(((i, j), (j, i))):
-        _fill_distances(scans.endpoints, scans.sensor_poses, scans.valid, scans.extents,
-                        model.angle_min, model.angle_increment, scans.full_circle, False,
-                        int(polygon), int(other), distances[row])
+    distances = pairs_point_distances(scans, np.array([[i, j]]))[0]
     return distances[0], distances[1]
 
+
+def pairs_point_distances(scans: ScanSet, pairs: np.ndarray) -> np.ndarray:
+    """(P, 2, K): for each pair (i, j) of `pairs` (P, 2), d_i of the end points of j and d_j of
+    the end points of i (zero where the end point is invalid or outside the other polygon)."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if pairs.size and not (pairs.min() >= 0 and pairs.max() < scans.scan_count):
+        bad = pairs[(pairs < 0) | (pairs >= scans.scan_count)][0]
+        raise ValueError(f'scan index {bad} out of range [0, {scans.scan_count})')
+    model = scans.model
+    distances = np.zeros((len(pairs), 2, scans.ranges.shape[1]))
+    _pairs_distances(scans.endpoints, scans.sensor_poses, scans.valid, scans.extents,
+                     model.angle_min, model.angle_increment, scans.full_circle, pairs, distances)
+    return distances
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _pairs_distances(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
+                     extents: np.ndarray, angle_min: float, increment: float,
+                     full_circle: bool, pairs: np.ndarray, out: np.ndarray) -> None:
+    for pair in numba.prange(pairs.shape[0]):
+        i, j = pairs[pair, 0], pairs[pair, 1]
+        _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
+                        False, i, j, out[pair, 0])
+        _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
+                        False, j, i, out[pair, 1])

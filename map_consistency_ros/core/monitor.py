@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -36,7 +36,7 @@ from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
                                                 check_constraint_rows, split_constraint_rows)
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
 
 # Waking the parallel kernel's threads costs more than measuring a few hundred pairs
@@ -283,6 +283,51 @@ class _Keyframes:
         return np.argsort(self.stamps[:self.count], kind='stable')
 
 
+class _Placement:
+    """The world geometry (a ScanSet's arrays) of keyframe slots at one kind of pose, kept
+    until a slot moves: an update then places only the scans it added or moved, where
+    rebuilding every scan it touches was a quarter of its time."""
+
+    def __init__(self) -> None:
+        self._rows: dict[str, np.ndarray] = {}
+        self._fresh = np.zeros(0, dtype=bool)
+
+    def invalidate(self, slots: np.ndarray) -> None:
+        """Slots whose pose changed."""
+        slots = np.asarray(slots, dtype=np.int64)
+        self._fresh[slots[slots < self._fresh.size]] = False
+
+    def scans(self, slots: np.ndarray, build: Callable[[np.ndarray], ScanSet]) -> ScanSet:
+        """The scans of `slots`; `build(slots)` places the ones not yet (or no longer) kept."""
+        slots = np.asarray(slots, dtype=np.int64)
+        known = slots < self._fresh.size
+        known[known] = self._fresh[slots[known]]
+        missing = np.unique(slots[~known])
+        if missing.size:
+            self._store(missing, build(missing))
+        return ScanSet.from_parts(self._model, **{name: rows[slots]
+                                                  for name, rows in self._rows.items()})
+
+    def _store(self, slots: np.ndarray, placed: ScanSet) -> None:
+        self._model = placed.model
+        needed = int(slots.max()) + 1
+        if needed > self._fresh.size:
+            capacity = max(needed, 2 * self._fresh.size, 16)
+            for name in SCAN_ARRAYS:
+                part = getattr(placed, name)
+                grown = np.zeros((capacity, *part.shape[1:]), dtype=part.dtype)
+                if name in self._rows:
+                    grown[:self._fresh.size] = self._rows[name]
+                self._rows[name] = grown
+            fresh = np.zeros(capacity, dtype=bool)
+            fresh[:self._fresh.size] = self._fresh
+            self._fresh = fresh
+        for name in SCAN_ARRAYS:
+            self._rows[name][slots] = getattr(placed, name)
+        self._fresh[slots] = True
+
+
+
 def _same_model(a: SensorModel, b: SensorModel) -> bool:
     return (math.isclose(a.angle_min, b.angle_min, abs_tol=1e-9)
             and math.isclose(a.angle_increment, b.angle_increment, abs_tol=1e-12)
@@ -311,6 +356,7 @@ class ConsistencyMonitor:
         trim = self.parameters.trim_largest
         self._current = _PairCache(self._keep, trim)
         self._local = _PairCache(self._keep, trim)
+        self._placed, self._placed_incremental = _Placement(), _Placement()
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
         self._result: ConsistencyResult | None = None
@@ -423,6 +469,7 @@ class ConsistencyMonitor:
         trim = self.parameters.trim_largest
         self._current = _PairCache(self._keep, trim)
         self._local = _PairCache(self._keep, trim)
+        self._placed, self._placed_incremental = _Placement(), _Placement()
         slots = np.arange(self.keyframe_count)
         measured = self._measure(slots, slots) if slots.size else 0
         self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
@@ -555,6 +602,7 @@ class ConsistencyMonitor:
         settings = self.settings
         moved = (shift > settings.move_tolerance) | (turn > settings.move_angle_tolerance)
         self._keyframes.poses[slots[moved]] = targets[moved]
+        self._placed.invalidate(slots[moved])
         return slots[moved]
 
     def _register(self, path_slots: np.ndarray) -> np.ndarray:
@@ -589,14 +637,18 @@ class ConsistencyMonitor:
         step = se2.relative(self._path_poses[anchor], self._path_poses[index])
         return se2.compose(self._keyframes.incremental[path_slots[anchor]], step)
 
-    def _scans(self, slots: np.ndarray, poses: np.ndarray) -> ScanSet:
-        return ScanSet.from_ranges(self._keyframes.ranges[slots],
-                                   sensor_poses(poses[slots], self._offset), self._model)
+    def _scans(self, slots: np.ndarray, incremental: bool = False) -> ScanSet:
+        """The keyframes `slots` placed at their current (or incremental) poses."""
+        keyframes = self._keyframes
+        poses = keyframes.incremental if incremental else keyframes.poses
+        placement = self._placed_incremental if incremental else self._placed
+        return placement.scans(slots, lambda missing: ScanSet.from_ranges(
+            keyframes.ranges[missing], sensor_poses(poses[missing], self._offset), self._model))
 
-    def _measure_keys(self, keys: np.ndarray, poses: np.ndarray) -> PairMeasures:
+    def _measure_keys(self, keys: np.ndarray, incremental: bool = False) -> PairMeasures:
         pairs = _key_slots(keys)
         involved = np.unique(pairs)
-        scans = self._scans(involved, poses)
+        scans = self._scans(involved, incremental)
         local = np.searchsorted(involved, pairs)
         parts = []
         for start in range(0, len(local), MEASURE_CHUNK):
@@ -610,14 +662,14 @@ class ConsistencyMonitor:
         """Measure pairs touching `changed` slots (`new` among them), update the local
         measures; the tests run when the next snapshot is taken."""
         keyframes = self._keyframes
-        placed = self._scans(changed, keyframes.poses)
+        placed = self._scans(changed)
         self._index.update(changed, placed.extents)
         self._current.drop_slots(changed, keyframes.count)
         touching = self._index.pairs_touching(changed)
         keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
         measured = 0
         if keys.size:
-            measures = self._measure_keys(keys, keyframes.poses)
+            measures = self._measure_keys(keys)
             keep = measures.point_count > 0  # pairs without points carry no evidence
             self._current.insert(keys[keep], _subset(measures, keep))
             measured += int(keys.size)
@@ -664,7 +716,7 @@ class ConsistencyMonitor:
             self._local.retain(required)
             required = required[~np.isin(required, self._local.keys)]
         if required.size:
-            self._local.insert(required, self._measure_keys(required, self._keyframes.incremental))
+            self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
 
 

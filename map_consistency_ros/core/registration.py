@@ -95,11 +95,12 @@ def surface_points(endpoints: np.ndarray, valid: np.ndarray) -> SurfacePoints:
     valid_before, valid_after = np.roll(valid, 1, axis=1), np.roll(valid, -1, axis=1)
     valid_before[:, 0] = False
     valid_after[:, -1] = False
-    close = ((np.linalg.norm(before - endpoints, axis=2) < SURFACE_GAP)
-             & (np.linalg.norm(after - endpoints, axis=2) < SURFACE_GAP))
+    x, y = endpoints[..., 0], endpoints[..., 1]
+    close = ((np.hypot(before[..., 0] - x, before[..., 1] - y) < SURFACE_GAP)
+             & (np.hypot(after[..., 0] - x, after[..., 1] - y) < SURFACE_GAP))
     has_normal = valid & valid_before & valid_after & close
     tangent = after - before
-    length = np.linalg.norm(tangent, axis=2)
+    length = np.hypot(tangent[..., 0], tangent[..., 1])
     has_normal &= length > 1e-9
     safe = np.where(has_normal, length, 1.0)
     normals = np.stack([-tangent[..., 1] / safe, tangent[..., 0] / safe], axis=-1)

@@ -7,7 +7,7 @@ import shapely
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.measure import (PairMeasures, pair_measures, pair_measures_naive,
-                                              point_distances)
+                                              pairs_point_distances, point_distances)
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import candidate_pairs
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -34,8 +34,9 @@ def _shapely_distances(scans: ScanSet, polygon_scan: int, point_scan: int) -> np
 
 def _assert_matches_shapely(scans: ScanSet, pairs: np.ndarray) -> None:
     measures = pair_measures(scans, pairs)
+    batch = pairs_point_distances(scans, measures.pairs)
     for row, (i, j) in enumerate(measures.pairs):
-        of_j, of_i = point_distances(scans, i, j)
+        of_j, of_i = batch[row]
         expected_j, expected_i = _shapely_distances(scans, i, j), _shapely_distances(scans, j, i)
         np.testing.assert_array_equal(of_j > 0, expected_j > 0)
         np.testing.assert_array_equal(of_i > 0, expected_i > 0)
@@ -175,6 +176,8 @@ def test_point_distances_rejects_bad_index():
     scans = _random_scans(2, 10, False, count=3)
     with pytest.raises(ValueError, match='out of range'):
         point_distances(scans, 0, 3)
+    with pytest.raises(ValueError, match='scan index -1 out of range'):
+        pairs_point_distances(scans, np.array([[0, 1], [-1, 2]]))
 
 
 def _log_scans(path) -> ScanSet:

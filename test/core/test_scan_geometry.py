@@ -135,3 +135,40 @@ def test_intel_scans_are_valid_polygons(intel_log):
 def intel_log(shared_data):
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     return log.ranges, log.laser_poses, sensor_model(log)
+
+
+def test_take_keeps_the_geometry_of_the_rows_it_picks(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
+    scans = ScanSet.from_ranges(log.ranges[:40], log.laser_poses[:40], model)
+    rows = np.array([31, 2, 2, 17])
+    taken = scans.take(rows)
+    built = ScanSet.from_ranges(log.ranges[rows], log.laser_poses[rows], model)
+    for name in ('sensor_poses', 'ranges', 'valid', 'endpoints', 'extents'):
+        np.testing.assert_array_equal(getattr(taken, name), getattr(built, name))
+        assert not getattr(taken, name).flags.writeable
+    assert taken.model == model and taken.scan_count == 4
+
+
+def test_from_parts_needs_every_array():
+    scans = ScanSet.from_ranges(np.full((1, 5), 2.0), np.zeros((1, 3)), HALF_CIRCLE)
+    with pytest.raises(ValueError, match='need exactly the arrays'):
+        ScanSet.from_parts(HALF_CIRCLE, sensor_poses=scans.sensor_poses, ranges=scans.ranges)
+
+
+def test_moved_equals_the_scans_built_at_the_moved_poses(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
+    scans = ScanSet.from_ranges(log.ranges[:30], log.laser_poses[:30], model)
+    rows = np.array([4, 11, 29])
+    transforms = np.array([[0.3, -0.2, 0.05], [-1.0, 2.0, -1.2], [0.0, 0.0, math.pi]])
+    moved = scans.moved(rows, transforms)
+    # p -> R p + t in the world is the pose composed on the left with the transform
+    poses = se2.compose(transforms, log.laser_poses[rows])
+    built = ScanSet.from_ranges(log.ranges[rows], poses, model)
+    np.testing.assert_allclose(se2.wrap_angle(moved.sensor_poses[:, 2] - poses[:, 2]), 0.0,
+                               atol=1e-12)
+    np.testing.assert_allclose(moved.sensor_poses[:, :2], poses[:, :2], atol=1e-12)
+    for name in ('endpoints', 'extents'):
+        np.testing.assert_allclose(getattr(moved, name), getattr(built, name), atol=1e-9)
+    np.testing.assert_array_equal(moved.valid, built.valid)
