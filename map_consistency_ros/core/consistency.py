@@ -293,15 +293,21 @@ def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
     return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)[0]
 
 
+_ENDPOINT_CHUNK = 2048  # pairs whose point distances are held at once (a few MB)
+
+
 def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
                    min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
     scales inside the other scan's polygon, and the scan each belongs to (M,)."""
     pairs = result.pairs[np.asarray(rows, dtype=np.int64)]
-    if not len(pairs):
-        return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-    depth = pairs_point_distances(scans, pairs)  # (P, 2, K): points of j, then of i
-    limit = min_depth * np.maximum(result.scales[pairs[:, 0]], result.scales[pairs[:, 1]])
-    pair, side, beam = np.nonzero(depth > limit[:, None, None])
-    owners = pairs[pair, 1 - side]
-    return scans.endpoints[owners, beam], owners
+    points, owners = [np.zeros((0, 2))], [np.zeros(0, dtype=np.int64)]
+    for start in range(0, len(pairs), _ENDPOINT_CHUNK):  # (P, 2, K) floats at a time
+        chunk = pairs[start:start + _ENDPOINT_CHUNK]
+        depth = pairs_point_distances(scans, chunk)  # points of j, then of i
+        limit = min_depth * np.maximum(result.scales[chunk[:, 0]], result.scales[chunk[:, 1]])
+        pair, side, beam = np.nonzero(depth > limit[:, None, None])
+        owner = chunk[pair, 1 - side]
+        points.append(scans.endpoints[owner, beam])
+        owners.append(owner)
+    return np.concatenate(points), np.concatenate(owners)

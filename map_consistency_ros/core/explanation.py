@@ -198,26 +198,63 @@ def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
     return tasks, task_of_pair.reshape(-1)
 
 
-def _apply(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """World transforms (E, 3) applied to points (E, ..., 2)."""
-    cos = np.cos(transforms[:, 2]).reshape(-1, *([1] * (points.ndim - 2)))
-    sin = np.sin(transforms[:, 2]).reshape(cos.shape)
-    x = cos * points[..., 0] - sin * points[..., 1] + transforms[:, 0].reshape(cos.shape)
-    y = sin * points[..., 0] + cos * points[..., 1] + transforms[:, 1].reshape(cos.shape)
-    return np.stack([x, y], axis=-1)
+@dataclass(frozen=True)
+class _PointMoments:
+    """Per scan: the number of valid end points (N,), their mean (N, 2) and mean squared norm
+    (N,): enough for the RMS displacement of any rigid transform, without the points."""
+
+    count: np.ndarray
+    mean: np.ndarray
+    square: np.ndarray
+
+    @classmethod
+    def of(cls, scans: ScanSet) -> _PointMoments:
+        valid = scans.valid
+        count = valid.sum(axis=1)
+        safe = np.maximum(count, 1)
+        x, y = scans.endpoints[..., 0], scans.endpoints[..., 1]
+        mean = np.stack([np.where(valid, x, 0.0).sum(axis=1),
+                         np.where(valid, y, 0.0).sum(axis=1)], axis=1) / safe[:, None]
+        return cls(count, mean, np.where(valid, x * x + y * y, 0.0).sum(axis=1) / safe)
+
+    def pooled(self, scans: np.ndarray) -> _PointMoments:
+        """The moments of the points of `scans` taken together, as one set (1,)."""
+        count = self.count[scans]
+        weight = count / max(int(count.sum()), 1)
+        return _PointMoments(np.array([count.sum()]), (weight[:, None] * self.mean[scans]).sum(
+            axis=0)[None], np.array([(weight * self.square[scans]).sum()]))
+
+    def displacement(self, transforms: np.ndarray, rows: np.ndarray | None = None
+                     ) -> np.ndarray:
+        """(E,) root mean square distance the world transforms (E, 3) move the points of the
+        scans `rows` (E,) (all sets when None): the mean of |(R - I) p + t|^2 in closed form,
+        as (R - I)^T (R - I) = 4 sin^2(theta / 2) I."""
+        count, mean, square = ((self.count, self.mean, self.square) if rows is None else
+                               (self.count[rows], self.mean[rows], self.square[rows]))
+        theta, tx, ty = transforms[:, 2], transforms[:, 0], transforms[:, 1]
+        cos_minus_one, sin = -2.0 * np.sin(theta / 2.0) ** 2, np.sin(theta)
+        rx = cos_minus_one * mean[:, 0] - sin * mean[:, 1]
+        ry = sin * mean[:, 0] + cos_minus_one * mean[:, 1]
+        mean_square = (4.0 * np.sin(theta / 2.0) ** 2 * square + 2.0 * (tx * rx + ty * ry)
+                       + tx * tx + ty * ty)
+        return np.where(count > 0, np.sqrt(np.maximum(mean_square, 0.0)), 0.0)
 
 
-def _rms_displacement(transforms: np.ndarray, points: np.ndarray,
-                      valid: np.ndarray) -> np.ndarray:
-    """(E,) root mean square distance the transforms (E, 3) move the valid points (E, K, 2)."""
-    shifted = _apply(transforms, points) - points
-    square = np.where(valid, shifted[..., 0] ** 2 + shifted[..., 1] ** 2, 0.0)
-    return np.sqrt(square.sum(axis=1) / np.maximum(valid.sum(axis=1), 1))
+_CORRECTED_CHUNK = 4096  # pairs re-placed at once: 2 scans each, a few tens of MB
 
 
 def _corrected_pairs_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
                           transforms: np.ndarray) -> np.ndarray:
     """Whether each pair (i, j) passes the pairwise test with j moved by its transform."""
+    passes = [np.zeros(0, dtype=bool)]
+    for start in range(0, len(pairs), _CORRECTED_CHUNK):  # two placed scans per pair at a time
+        part = slice(start, start + _CORRECTED_CHUNK)
+        passes.append(_corrected_chunk_pass(scans, result, pairs[part], transforms[part]))
+    return np.concatenate(passes)
+
+
+def _corrected_chunk_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+                          transforms: np.ndarray) -> np.ndarray:
     first, second = pairs[:, 0], pairs[:, 1]
     fixed, moved = scans.take(first), scans.moved(second, transforms)
     # pair k is scans (2k, 2k + 1) of one set: fixed i and moved j side by side
@@ -285,23 +322,22 @@ def _components(scan_count: int, links: np.ndarray) -> np.ndarray:
     return np.array([root(node) for node in range(scan_count)])
 
 
-def _agreeing_registrations(scans: ScanSet, rows: np.ndarray, pairs: np.ndarray,
+def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.ndarray,
                             transforms: np.ndarray, task_of_pair: np.ndarray,
                             correction: np.ndarray, settings: ExplanationSettings) -> int:
     """Independent registrations (tasks) whose correction is within the tolerance of the
     region's: a loop-closure error moves a stretch rigidly, so its submaps agree."""
     later = pairs[rows, 1]
-    difference = _rms_displacement(transforms[rows], scans.endpoints[later],
-                                   scans.valid[later])
-    reference = _rms_displacement(np.broadcast_to(correction, (rows.size, 3)),
-                                  scans.endpoints[later], scans.valid[later])
+    difference = moments.displacement(transforms[rows], later)
+    reference = moments.displacement(np.broadcast_to(correction, (rows.size, 3)), later)
     agree = np.abs(difference - reference) <= settings.misalignment_tolerance
     return int(np.unique(task_of_pair[rows[agree]]).size)
 
 
-def _regions(scans: ScanSet, pairs: np.ndarray, bad: np.ndarray, codes: np.ndarray,
-             transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
-             flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+def _regions(scans: ScanSet, moments: _PointMoments, pairs: np.ndarray, bad: np.ndarray,
+             codes: np.ndarray, transforms: np.ndarray, covariances: np.ndarray,
+             task_of_pair: np.ndarray, flagged: np.ndarray,
+             settings: ExplanationSettings) -> tuple[Misalignment, ...]:
     on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
     if not on_flagged.any():
         return ()
@@ -318,14 +354,12 @@ def _regions(scans: ScanSet, pairs: np.ndarray, bad: np.ndarray, codes: np.ndarr
         registered = registered_rows.size * 2 >= rows.size
         if registered:
             correction = np.median(transforms[registered_rows], axis=0)
-            if _agreeing_registrations(scans, registered_rows, pairs, transforms, task_of_pair,
+            if _agreeing_registrations(moments, registered_rows, pairs, transforms, task_of_pair,
                                        correction, settings) < settings.min_registrations:
                 continue
             spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
                                                    axis2=2), axis=0))
-            displacement = float(_rms_displacement(
-                correction[None], scans.endpoints[moved].reshape(1, -1, 2),
-                scans.valid[moved].reshape(1, -1))[0])
+            displacement = float(moments.pooled(moved).displacement(correction[None])[0])
         else:
             # beyond registration: a displaced stretch (at least a block of scans) that several
             # independent registrations fail on
@@ -455,8 +489,8 @@ def explain(scans: ScanSet, result: ConsistencyResult,
                      else cache.register(scans, tasks, registration))
     transforms = registrations.world_transforms()[task_of_pair]
     passes = _corrected_pairs_pass(scans, result, pairs, transforms)
-    displacement = _rms_displacement(transforms, scans.endpoints[pairs[:, 1]],
-                                     scans.valid[pairs[:, 1]])
+    moments = _PointMoments.of(scans)
+    displacement = moments.displacement(transforms, pairs[:, 1])
     codes = _classify(registrations, task_of_pair, passes, displacement, settings)
     misaligned = codes == _CLASS_CODE[MISALIGNED]
     unexplained = (codes == _CLASS_CODE[CHANGE]) | (codes == _CLASS_CODE[UNREGISTERED])
@@ -468,7 +502,7 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     beyond = codes == _CLASS_CODE[UNREGISTERED]
     flagged = _cascaded(result, pairs, misaligned | beyond) | gross
     bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
-    misalignments = _regions(scans, pairs, bad, codes, transforms,
+    misalignments = _regions(scans, moments, pairs, bad, codes, transforms,
                              registrations.covariances[task_of_pair], task_of_pair, flagged,
                              settings)
     flagged = _region_scans(misalignments, scans.scan_count)

@@ -42,7 +42,7 @@ from map_consistency_ros.core.spatial_index import ScanExtentIndex
 # Waking the parallel kernel's threads costs more than measuring a few hundred pairs
 # serially (tens of ms on a busy 2-core machine, bench/bench_monitor.py); a keyframe's update
 # measures about a hundred.
-PARALLEL_MIN_PAIRS = 1000
+PARALLEL_MIN_PAIRS = 100
 # The compiled kernel holds the GIL while it runs: batches of at most this many pairs keep a
 # live node's subscriptions and its shutdown responsive during a large update (a loop
 # closure, a burst of keyframes).

@@ -45,7 +45,7 @@ from map_consistency_ros.core.explanation import (Assessment, ExplanationSetting
                                                   misaligned_endpoints)
 from map_consistency_ros.core.reporting import assessment_report, plain
 from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
+from map_consistency_ros.core.feed import FeedSettings, MonitorFeed, warm_up
 from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
 from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
                                                  unknown_names)
@@ -301,6 +301,8 @@ class MapConsistencyNode(Node):
     # -- worker ------------------------------------------------------------------------------
 
     def _work(self) -> None:
+        # records queue meanwhile: the first update then finds the kernels loaded
+        warm_up()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)
             self._wake.clear()

@@ -3,6 +3,7 @@ is a misalignment, a gross error is never a change."""
 import numpy as np
 import pytest
 
+from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
                                                   ExplanationSettings, RegistrationCache,
@@ -160,3 +161,28 @@ def test_a_cache_gives_the_same_assessment_and_registers_only_what_changed(intel
     assert registered < len(cache) < 2 * registered
     fresh = explain(moved, again.result)
     assert again.summary_line() == fresh.summary_line()
+
+
+def test_rms_displacement_in_closed_form_equals_moving_the_points(shared_data):
+    from map_consistency_ros.core.explanation import _PointMoments
+    log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    scans = ScanSet.from_ranges(log.ranges[:40], log.laser_poses[:40], carmen.sensor_model(log))
+    rng = np.random.default_rng(4)
+    transforms = np.column_stack([rng.normal(0.0, 0.3, 40), rng.normal(0.0, 0.3, 40),
+                                  rng.normal(0.0, 0.05, 40)])
+    transforms[0] = (0.0, 0.0, 1e-9)  # a turn too small for 1 - cos
+
+    def direct(transform, rows):
+        points = scans.endpoints[rows][scans.valid[rows]]
+        moved = se2.compose(np.broadcast_to(transform, (len(points), 3)),
+                            np.column_stack([points, np.zeros(len(points))]))[:, :2]
+        return np.sqrt(np.mean(np.sum((moved - points) ** 2, axis=1)))
+
+    moments = _PointMoments.of(scans)
+    rows = np.arange(40)
+    expected = [direct(transforms[k], [k]) for k in rows]
+    np.testing.assert_allclose(moments.displacement(transforms, rows), expected, rtol=1e-9,
+                               atol=1e-15)
+    together = np.array([3, 17, 29])
+    assert moments.pooled(together).displacement(transforms[1:2])[0] == pytest.approx(
+        direct(transforms[1], together), rel=1e-12)

@@ -258,3 +258,19 @@ def test_slam_toolbox_snapshots_overtaking_poses_give_the_log_order_verdict(
     np.testing.assert_array_equal(results[0].incremental_poses, results[1].incremental_poses)
     np.testing.assert_array_equal(results[0].result.inconsistent, results[1].result.inconsistent)
     assert results[0].result.failed_pair_count == results[1].result.failed_pair_count
+
+
+def test_warm_up_loads_every_kernel_of_both_stages():
+    """In a fresh interpreter (this one has run the kernels already)."""
+    import subprocess
+    import sys
+    probe = ('import numba\n'
+             'from map_consistency_ros.core import feed, measure, registration, statistics\n'
+             'feed.warm_up()\n'
+             'kernels = [measure._pair_kernel, measure._pairs_distances, '
+             'registration._thin_ranges, registration._register_tasks, '
+             'statistics._critical_counts]\n'
+             'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          check=True)
+    assert done.stdout.strip() == '1,1,1,1,1'
