@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_node_load.py [--logs intel fr079] [--rates 100 400]
                                               [--path-every 10] [--scans N] [--no-reference]
+                                              [--executors events multi_threaded]
 
 For each log and rate a fresh node process (defaults of config/map_consistency.yaml) gets the
 log's scans at the rate and, every `--path-every` scans, the growing keyframe Path of the
@@ -131,7 +132,8 @@ def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
     return np.array(seconds)
 
 
-def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool) -> None:
+def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
+        executor: str) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
@@ -154,7 +156,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 200)),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     node = subprocess.Popen([sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
-                             '--params-file', str(REPO / 'config' / 'map_consistency.yaml')],
+                             '--params-file', str(REPO / 'config' / 'map_consistency.yaml'),
+                             '-p', f'executor:={executor}'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     os.environ.update(env)
     observer = Observer()
@@ -217,7 +220,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             node.kill()
     keyframes = reports[-1]['scans'] if reports else 0
     print(f'\n{name}: {count} scans at {rate:g} scans/s (streamed in {streamed:.1f} s), '
-          f'a Path every {path_every} scans')
+          f'a Path every {path_every} scans, executor {executor}')
     print(f'  keyframes registered / scans sent   {keyframes} / {count}')
     print(f'  reported lost                        lost scans {status.get("lost scans")}, '
           f'poses without scan {status.get("poses without scan")}, '
@@ -269,11 +272,15 @@ def main() -> None:
     parser.add_argument('--scans', type=int, default=None, help='only the first N scans')
     parser.add_argument('--no-reference', action='store_true',
                         help='skip the in-process reference (minutes on Freiburg 079)')
+    parser.add_argument('--executors', nargs='+', default=['events'],
+                        choices=['events', 'multi_threaded'],
+                        help="the node's executor parameter; several: side by side")
     args = parser.parse_args()
     os.environ.setdefault('ROS_LOG_DIR', '/tmp/bench_node_load_logs')
     for name in args.logs:
         for rate in args.rates:
-            run(name, rate, args.path_every, args.scans, not args.no_reference)
+            for executor in args.executors:
+                run(name, rate, args.path_every, args.scans, not args.no_reference, executor)
 
 
 if __name__ == '__main__':

@@ -39,13 +39,12 @@ from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
 from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
 
-# Waking the parallel kernel's threads costs more than measuring a few hundred pairs
-# serially (tens of ms on a busy 2-core machine, bench/bench_monitor.py); a keyframe's update
-# measures about a hundred.
+# Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
+# threads for a handful of pairs costs more than it saves; from about a hundred, two threads
+# halve the time on an idle 2-core machine (bench/bench_monitor.py).
 PARALLEL_MIN_PAIRS = 100
-# The compiled kernel holds the GIL while it runs: batches of at most this many pairs keep a
-# live node's subscriptions and its shutdown responsive during a large update (a loop
-# closure, a burst of keyframes).
+# Batches of at most this many pairs keep a live node's shutdown responsive during a large
+# update (a loop closure, a burst of keyframes).
 MEASURE_CHUNK = 1024
 # Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
 _SLOT_BITS = 31
