@@ -679,11 +679,17 @@ class MapConsistencyNode(Node):
         super().destroy_node()
 
 
-def _message_executor(kind: str):
+def _message_executor(node: MapConsistencyNode):
     """The executor that takes the node's messages (NodeSettings.executor)."""
-    if kind == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
+    if node.executor_kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # an rclpy older than Jazzy's 7.1 releases that have it
+            node.get_logger().warning('executor: events needs rclpy.experimental.'
+                                      'EventsExecutor, which this rclpy lacks; using '
+                                      'multi_threaded')
+        else:
+            return EventsExecutor()
     return MultiThreadedExecutor(num_threads=4)
 
 
@@ -715,7 +721,7 @@ def main(args: list[str] | None = None) -> int:
         except (ParameterException, ValueError) as error:
             print(f'map_consistency: bad parameter: {error}', file=sys.stderr)
             return 2
-        executor = _message_executor(node.executor_kind)
+        executor = _message_executor(node)
         executor.add_node(node)
         service_executor = MultiThreadedExecutor(num_threads=4)
         service_executor.add_node(node.service_host)
