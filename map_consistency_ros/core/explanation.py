@@ -232,10 +232,11 @@ class _PointMoments:
         count, mean, square = ((self.count, self.mean, self.square) if rows is None else
                                (self.count[rows], self.mean[rows], self.square[rows]))
         theta, tx, ty = transforms[:, 2], transforms[:, 0], transforms[:, 1]
-        cos_minus_one, sin = -2.0 * np.sin(theta / 2.0) ** 2, np.sin(theta)
-        rx = cos_minus_one * mean[:, 0] - sin * mean[:, 1]
-        ry = sin * mean[:, 0] + cos_minus_one * mean[:, 1]
-        mean_square = (4.0 * np.sin(theta / 2.0) ** 2 * square + 2.0 * (tx * rx + ty * ry)
+        half_turn = np.sin(theta / 2.0) ** 2  # 1 - cos(theta) = 2 half_turn, exact near zero
+        sin = np.sin(theta)
+        rx = -2.0 * half_turn * mean[:, 0] - sin * mean[:, 1]
+        ry = sin * mean[:, 0] - 2.0 * half_turn * mean[:, 1]
+        mean_square = (4.0 * half_turn * square + 2.0 * (tx * rx + ty * ry)
                        + tx * tx + ty * ty)
         return np.where(count > 0, np.sqrt(np.maximum(mean_square, 0.0)), 0.0)
 

@@ -290,6 +290,7 @@ class _Placement:
     def __init__(self) -> None:
         self._rows: dict[str, np.ndarray] = {}
         self._fresh = np.zeros(0, dtype=bool)
+        self._model: SensorModel | None = None
 
     def invalidate(self, slots: np.ndarray) -> None:
         """Slots whose pose changed."""
@@ -324,7 +325,6 @@ class _Placement:
         for name in SCAN_ARRAYS:
             self._rows[name][slots] = getattr(placed, name)
         self._fresh[slots] = True
-
 
 
 def _same_model(a: SensorModel, b: SensorModel) -> bool:
@@ -673,10 +673,7 @@ class ConsistencyMonitor:
             self._current.insert(keys[keep], _subset(measures, keep))
             measured += int(keys.size)
         order = keyframes.order()
-        rank_of_slot = np.empty(keyframes.count, dtype=np.int64)
-        rank_of_slot[order] = np.arange(keyframes.count)
-        measured += self._update_local(order, rank_of_slot[new])
-        # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
+        measured += self._update_local(order, _rank_of_slot(order)[new])
         self._result = None  # the statistics run once per snapshot, not per update
         return measured
 
@@ -690,10 +687,8 @@ class ConsistencyMonitor:
             keyframes = self._keyframes
             order = keyframes.order()
             # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
-            ranks = None
-            if not np.array_equal(order, np.arange(keyframes.count)):
-                ranks = np.empty(keyframes.count, dtype=np.int64)
-                ranks[order] = np.arange(keyframes.count)
+            in_order = np.array_equal(order, np.arange(keyframes.count))
+            ranks = None if in_order else _rank_of_slot(order)
             scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
             self._result = evaluate_pairs(self._current.measures(ranks), scales,
                                           keyframes.count, self.parameters,
@@ -717,6 +712,13 @@ class ConsistencyMonitor:
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
+
+
+def _rank_of_slot(order: np.ndarray) -> np.ndarray:
+    """The stamp-order rank of every slot, from the slots in stamp order."""
+    ranks = np.empty(order.size, dtype=np.int64)
+    ranks[order] = np.arange(order.size)
+    return ranks
 
 
 def _subset(measures: PairMeasures, keep: np.ndarray) -> PairMeasures:

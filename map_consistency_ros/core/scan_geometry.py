@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from map_consistency_ros.core import se2
+
 FULL_CIRCLE_TOLERANCE = 1e-9
 
 
@@ -139,11 +141,7 @@ class ScanSet:
         poses and end points are transformed, not recomputed from the ranges."""
         transforms = np.asarray(transforms, dtype=np.float64).reshape(-1, 3)
         cos, sin = np.cos(transforms[:, 2])[:, None], np.sin(transforms[:, 2])[:, None]
-        poses = self.sensor_poses[rows].copy()
-        x, y = poses[:, 0:1].copy(), poses[:, 1:2]
-        poses[:, 0:1] = cos * x - sin * y + transforms[:, 0:1]
-        poses[:, 1:2] = sin * x + cos * y + transforms[:, 1:2]
-        poses[:, 2] += transforms[:, 2]
+        poses = se2.compose(transforms, self.sensor_poses[rows])
         ends = self.endpoints[rows]
         xs = cos * ends[..., 0] - sin * ends[..., 1] + transforms[:, 0:1]
         ys = sin * ends[..., 0] + cos * ends[..., 1] + transforms[:, 1:2]

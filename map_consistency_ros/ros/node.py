@@ -31,7 +31,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
@@ -112,7 +112,8 @@ class MapConsistencyNode(Node):
         self._verdict: tuple[Assessment, MonitorSnapshot, ScanSet] | None = None
         self._explained_at = -math.inf
         self._explaining = threading.Lock()  # one explanation at a time (the cache is shared)
-        self._publishing = threading.Lock()  # the worker and the explainer both publish
+        # the worker and the explainer both publish (reentrant: a reset takes a snapshot)
+        self._publishing = threading.RLock()
         self._explain_wake = threading.Event()
         settings = self._settings
         self._queue_limit = self._feed.monitor_settings.max_buffered_scans
@@ -143,7 +144,7 @@ class MapConsistencyNode(Node):
         self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
         self._serial = 0  # counts snapshots: a verdict never replaces one of a newer snapshot
         self._verdict_serial = -1
-        self._marker_updates = MarkerUpdates()  # worker thread only
+        self._marker_updates = MarkerUpdates()  # used under _publishing
         self._marker_subscribers = 0
 
         self._markers = self.create_publisher(MarkerArray, '~/markers', RELIABLE)
@@ -366,7 +367,7 @@ class MapConsistencyNode(Node):
     def _after_reset(self, reason: str) -> None:
         self.get_logger().warning(f'monitor reset: {reason}')
         with self._publishing:
-            self._snapshot, self._serial = self._feed.monitor.snapshot(), self._serial + 1
+            self._take_snapshot()
             self._verdict, self._verdict_serial = None, self._serial
             self._markers.publish(self._marker_updates.clear(self._frame_id,
                                                              self.get_clock().now().to_msg()))
@@ -585,8 +586,7 @@ class MapConsistencyNode(Node):
     def _reset(self) -> tuple[bool, str]:
         keyframes = self._feed.monitor.keyframe_count
         self._feed.reset('~/reset service')
-        self._after_reset('~/reset service')
-        self._take_snapshot()
+        self._after_reset('~/reset service')  # takes the new snapshot
         self._publish_diagnostics()
         return True, f'reset: {keyframes} keyframes forgotten'
 
@@ -679,7 +679,7 @@ class MapConsistencyNode(Node):
         super().destroy_node()
 
 
-def _message_executor(node: MapConsistencyNode):
+def _message_executor(node: MapConsistencyNode) -> Executor:
     """The executor that takes the node's messages (NodeSettings.executor)."""
     if node.executor_kind == 'events':
         try:
@@ -693,12 +693,7 @@ def _message_executor(node: MapConsistencyNode):
     return MultiThreadedExecutor(num_threads=4)
 
 
-def _spin_services(executor: MultiThreadedExecutor, done: threading.Event) -> None:
-    while not done.is_set() and executor.context.ok():
-        executor.spin_once(timeout_sec=0.05)
-
-
-def _spin_until(executor: MultiThreadedExecutor, stop: threading.Event) -> None:
+def _spin_until(executor: Executor, stop: threading.Event) -> None:
     while not stop.is_set() and executor.context.ok():
         executor.spin_once(timeout_sec=0.05)
 
@@ -726,7 +721,7 @@ def main(args: list[str] | None = None) -> int:
         service_executor = MultiThreadedExecutor(num_threads=4)
         service_executor.add_node(node.service_host)
         services_done = threading.Event()
-        service_thread = threading.Thread(target=_spin_services, name='map_consistency_services',
+        service_thread = threading.Thread(target=_spin_until, name='map_consistency_services',
                                           args=(service_executor, services_done), daemon=True)
         service_thread.start()
         _spin_until(executor, stop)

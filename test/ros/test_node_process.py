@@ -57,6 +57,7 @@ def _params(tmp_path, text: str) -> str:
     ('    min_points: 2.5\n', 'min_points: expected an integer, got a float 2.5'),
     ('    alpha: 0.7\n', 'alpha: 0.7 is outside [1e-09, 0.5]'),
     ('    pose_source: tf\n', "pose_source: 'tf' is not one of path"),
+    ('    executor: fast\n', "executor: 'fast' is not one of events"),
 ])
 def test_a_bad_parameter_ends_the_node_with_one_line(ros_env, tmp_path, text, expected):
     process = _node(ros_env, '--params-file', _params(tmp_path, text))
