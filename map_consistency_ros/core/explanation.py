@@ -67,6 +67,12 @@ class ExplanationSettings:
         (1e-12, 0.5))
     min_registrations: int = parameter(
         3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
+    min_region_scans: int = parameter(
+        3, 'consecutive keyframes a misaligned region must hold on each side (a stretch, not '
+        'scans here and there)', 'scans', (1, 1000))
+    min_resolved_fraction: float = parameter(
+        0.5, 'share of the failing overlaps between two submaps, and between a region and its '
+        'reference scans, that a correction must mend, net of those it breaks', '', (0.0, 1.0))
     gross_fraction: float = parameter(
         0.5, 'a scan whose pairs fail unexplained more often than this (binomial test) sees a '
         'gross error, not changes', '', (0.01, 0.99))
@@ -75,6 +81,10 @@ class ExplanationSettings:
         (0.0, 100.0))
     change_cell: float = parameter(0.5, 'changed end points closer than this form one place',
                                    'm', (0.01, 100.0))
+    max_change_extent: float = parameter(
+        3.0, 'largest place a change can span (people, doors, furniture); a region beyond '
+        'registration must show most of its inconsistent end points in larger places', 'm',
+        (0.1, 1000.0))
 
     def __post_init__(self) -> None:
         for spec in specs(ExplanationSettings):
@@ -123,10 +133,26 @@ class Assessment:
     changes: tuple[ChangedPlace, ...]
 
     @property
+    def local_distortion(self) -> float:
+        """Metres: the mean inconsistency distance between the median scan and its temporal
+        neighbours, sqrt(2 / pi) times the median local scale s_i (the half-normal mean)."""
+        if self.result.scan_count == 0:
+            return 0.0
+        return float(np.median(self.result.scales)) * math.sqrt(2.0 / math.pi)
+
+    @property
+    def distorted(self) -> bool:
+        """Consecutive scans disagree by more than the tolerance over most of the map: the
+        chain itself is bent (a back-end pulled apart by wrong constraints), whatever the
+        pairs say. Judged on maps of at least `min_region_scans` scans."""
+        return (self.result.scan_count >= self.settings.min_region_scans
+                and self.local_distortion > self.settings.misalignment_tolerance)
+
+    @property
     def consistent(self) -> bool:
         if self.settings.strict:
             return self.result.consistent
-        return not self.misalignments
+        return not self.misalignments and not self.distorted
 
     @property
     def flagged(self) -> np.ndarray:
@@ -145,9 +171,12 @@ class Assessment:
         if self.settings.strict:
             flagged = int(self.result.inconsistent.sum())
             return f'{verdict}: {flagged} scans fail the paper\'s test (strict verdict); {changes}'
+        distortion = (f'locally distorted (consecutive scans disagree by '
+                      f'{self.local_distortion:.2f} m); ' if self.distorted else '')
         if not self.misalignments:
             tolerance = self.settings.misalignment_tolerance
-            return f'{verdict}: no misalignment above {tolerance:.2f} m; {changes}'
+            return (f'{verdict}: {distortion}no misalignment above {tolerance:.2f} m; '
+                    f'{changes}')
         largest = _largest(self.misalignments)
         if largest.registered:
             size = (f'largest {largest.displacement:.2f} m, '
@@ -156,7 +185,7 @@ class Assessment:
             size = 'largest beyond local registration, a gross error'
         count = len(self.misalignments)
         regions = f'{count} misaligned region{"s" if count > 1 else ""}'
-        return f'{verdict}: {regions} ({size}); {changes}'
+        return f'{verdict}: {distortion}{regions} ({size}); {changes}'
 
 
 def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
@@ -326,19 +355,117 @@ def _components(scan_count: int, links: np.ndarray) -> np.ndarray:
 def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.ndarray,
                             transforms: np.ndarray, task_of_pair: np.ndarray,
                             correction: np.ndarray, settings: ExplanationSettings) -> int:
-    """Independent registrations (tasks) whose correction is within the tolerance of the
-    region's: a loop-closure error moves a stretch rigidly, so its submaps agree."""
+    """Independent registrations (tasks) whose correction places the later scan's points within
+    the tolerance (RMS) of where the region's correction places them: a loop-closure error
+    moves a stretch rigidly, so its submaps agree."""
     later = pairs[rows, 1]
-    difference = moments.displacement(transforms[rows], later)
-    reference = moments.displacement(np.broadcast_to(correction, (rows.size, 3)), later)
-    agree = np.abs(difference - reference) <= settings.misalignment_tolerance
+    # |T_k p - C p| = |D p| with D = C^-1 T_k (rotation theta_k - theta_c, translation
+    # R_c^T (t_k - t_c))
+    cos, sin = math.cos(correction[2]), math.sin(correction[2])
+    shift = transforms[rows, :2] - correction[:2]
+    relative = np.stack([cos * shift[:, 0] + sin * shift[:, 1],
+                         -sin * shift[:, 0] + cos * shift[:, 1],
+                         transforms[rows, 2] - correction[2]], axis=1)
+    agree = moments.displacement(relative, later) <= settings.misalignment_tolerance
     return int(np.unique(task_of_pair[rows[agree]]).size)
 
 
-def _regions(scans: ScanSet, moments: _PointMoments, pairs: np.ndarray, bad: np.ndarray,
-             codes: np.ndarray, transforms: np.ndarray, covariances: np.ndarray,
-             task_of_pair: np.ndarray, flagged: np.ndarray,
-             settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+def _longest_run(scans: np.ndarray, gap: int) -> int:
+    """The most scans of sorted indices `scans` joined by steps of at most `gap`."""
+    if scans.size == 0:
+        return 0
+    breaks = np.flatnonzero(np.diff(scans) > gap)
+    bounds = np.concatenate([[0], breaks + 1, [scans.size]])
+    return int(np.diff(bounds).max())
+
+
+_CONFIRM_SAMPLE = 36  # overlaps re-measured per registration: enough for a share, bounded
+
+
+def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The tested pairs between the reference and the query submap of each task (r0, r1, q0,
+    q1), oriented (reference scan, query scan): rows into result.pairs (M,) and task ids (M,).
+    At most _CONFIRM_SAMPLE per task, evenly spread."""
+    count = result.scan_count
+    tested = np.flatnonzero(result.tested)
+    first, second = result.pairs[tested, 0], result.pairs[tested, 1]
+    keys = np.concatenate([first * count + second, second * count + first])
+    rows = np.concatenate([tested, tested])
+    order = np.argsort(keys, kind='stable')
+    keys, rows = keys[order], rows[order]
+    task_of_scan = np.concatenate([np.full(high - low, index) for index, (low, high)
+                                   in enumerate(tasks[:, :2])] or [np.zeros(0, np.int64)])
+    scan = np.concatenate([np.arange(low, high) for low, high in tasks[:, :2]]
+                          or [np.zeros(0, np.int64)])
+    low = np.searchsorted(keys, scan * count + tasks[task_of_scan, 2])
+    high = np.searchsorted(keys, scan * count + tasks[task_of_scan, 3])
+    lengths = high - low
+    starts = np.repeat(low - np.cumsum(lengths) + lengths, lengths)
+    picked = starts + np.arange(int(lengths.sum()))
+    task_ids = np.repeat(task_of_scan, lengths)
+    if picked.size:  # evenly thin each task's overlaps (contiguous per task) to the sample
+        task_total = np.bincount(task_ids, minlength=len(tasks))
+        rank = np.arange(picked.size) - np.repeat(np.cumsum(task_total) - task_total,
+                                                  task_total)
+        step = np.maximum(1, -(-task_total // _CONFIRM_SAMPLE))
+        keep = rank % step[task_ids] == 0
+        picked, task_ids = picked[keep], task_ids[keep]
+    return rows[picked], task_ids
+
+
+def _confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
+               transforms: np.ndarray, settings: ExplanationSettings) -> np.ndarray:
+    """(T,) whether each registration's correction (world transforms (T, 3) of the query
+    submap) resolves at least `min_resolved_fraction` of the failing tested pairs between its
+    two submaps, net of the passing pairs it breaks.
+
+    A rigid error of the query submap makes most pairs between the two submaps fail, changes
+    aside, and its correction resolves them. A correction that snapped onto a moved object or a
+    person resolves the pairs that see it and breaks those that see the static walls.
+    """
+    rows, task_ids = _task_overlaps(result, tasks)
+    pairs = result.pairs[rows]
+    in_query = (pairs >= tasks[task_ids, 2:3]) & (pairs < tasks[task_ids, 3:4])
+    oriented = np.where(in_query[:, :1] & ~in_query[:, 1:], pairs[:, ::-1], pairs)
+    passes = _corrected_pairs_pass(scans, result, oriented, transforms[task_ids])
+    failing = np.bincount(task_ids, weights=result.failed[rows], minlength=len(tasks))
+    after = np.bincount(task_ids, weights=~passes, minlength=len(tasks))
+    return (failing > 0) & (failing - after >= settings.min_resolved_fraction * failing)
+
+
+_RESOLVED_SAMPLE = 2000  # overlaps re-measured per region: enough for a share, bounded cost
+
+
+def _resolved_fraction(scans: ScanSet, result: ConsistencyResult, moved: np.ndarray,
+                       reference: np.ndarray, correction: np.ndarray) -> float:
+    """The share of the failing tested pairs between `moved` and `reference` scans that pass
+    with `moved` placed by the world transform `correction`, net of the passing pairs it breaks:
+    a region's correction must mend what its registrations mend one by one."""
+    in_moved = np.zeros(result.scan_count, dtype=bool)
+    in_moved[moved] = True
+    in_reference = np.zeros(result.scan_count, dtype=bool)
+    in_reference[reference] = True
+    first, second = result.pairs[:, 0], result.pairs[:, 1]
+    rows = np.flatnonzero(result.tested & ((in_moved[first] & in_reference[second])
+                                           | (in_reference[first] & in_moved[second])))
+    rows = rows[::max(1, -(-rows.size // _RESOLVED_SAMPLE))]
+    failing = int(np.count_nonzero(result.failed[rows]))
+    if failing == 0:
+        return 0.0
+    oriented = result.pairs[rows]
+    oriented = np.where(in_moved[oriented[:, :1]], oriented[:, ::-1], oriented)
+    passes = _corrected_pairs_pass(scans, result, oriented,
+                                   np.repeat(correction[None], rows.size, axis=0))
+    return 1.0 - np.count_nonzero(~passes) / failing
+
+
+def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
+             moments: _PointMoments, bad: np.ndarray, codes: np.ndarray,
+             transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
+             flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+    """Misaligned regions from the explained pairs (rows `explained` of `result`)."""
+    pairs = result.pairs[explained]
     on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
     if not on_flagged.any():
         return ()
@@ -351,6 +478,9 @@ def _regions(scans: ScanSet, moments: _PointMoments, pairs: np.ndarray, bad: np.
         rows = np.flatnonzero(on_flagged & (labels[pairs[:, 0]] == label))
         moved = np.unique(pairs[rows, 1])
         reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
+        if min(_longest_run(moved, settings.block),
+               _longest_run(reference, settings.block)) < settings.min_region_scans:
+            continue  # scans out of place here and there, or a revisit seen from one scan
         registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
         registered = registered_rows.size * 2 >= rows.size
         if registered:
@@ -361,11 +491,15 @@ def _regions(scans: ScanSet, moments: _PointMoments, pairs: np.ndarray, bad: np.
             spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
                                                    axis2=2), axis=0))
             displacement = float(moments.pooled(moved).displacement(correction[None])[0])
+            if (_resolved_fraction(scans, result, moved, reference, correction)
+                    < settings.min_resolved_fraction):
+                continue
         else:
-            # beyond registration: a displaced stretch (at least a block of scans) that several
-            # independent registrations fail on
+            # beyond registration, no correction corroborates it: a displaced stretch of at
+            # least a block, spread wider than any change, that several registrations fail on
             if (np.unique(task_of_pair[rows]).size < settings.min_registrations
-                    or moved.size < settings.block):
+                    or _longest_run(moved, settings.block) < settings.block
+                    or not _spans_beyond_changes(scans, result, explained[rows], settings)):
                 continue
             correction = np.full(3, np.nan)
             spread = np.full(3, np.nan)
@@ -385,27 +519,53 @@ def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> n
     return flagged
 
 
+def _places(points: np.ndarray, cell: float) -> np.ndarray:
+    """Labels (M,) of points (M, 2) joined through neighbouring cells of size `cell`."""
+    cells = np.floor(points / cell).astype(np.int64)
+    unique, cell_of_point = np.unique(cells, axis=0, return_inverse=True)
+    lookup = {tuple(item): index for index, item in enumerate(unique)}
+    links = [(index, lookup[(item[0] + dx, item[1] + dy)])
+             for index, item in enumerate(unique) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+             if (item[0] + dx, item[1] + dy) in lookup]
+    labels = _components(len(unique), np.asarray(links, dtype=np.int64).reshape(-1, 2))
+    return labels[cell_of_point.reshape(-1)]
+
+
 def _changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
              settings: ExplanationSettings) -> tuple[ChangedPlace, ...]:
     """The deep end points of the change pairs `rows` of `result`, grouped into places."""
     points, owners = pair_endpoints(scans, result, rows, settings.change_depth)
     if not len(points):
         return ()
-    cells = np.floor(points / settings.change_cell).astype(np.int64)
-    unique, cell_of_point = np.unique(cells, axis=0, return_inverse=True)
-    cell_of_point = cell_of_point.reshape(-1)
-    lookup = {tuple(cell): index for index, cell in enumerate(unique)}
-    links = [(index, lookup[(cell[0] + dx, cell[1] + dy)])
-             for index, cell in enumerate(unique) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-             if (cell[0] + dx, cell[1] + dy) in lookup]
-    labels = _components(len(unique), np.asarray(links, dtype=np.int64).reshape(-1, 2))
+    labels = _places(points, settings.change_cell)
     places = []
     for label in np.unique(labels):
-        members = labels[cell_of_point] == label
+        members = labels == label
         centre = points[members].mean(axis=0)
         places.append(ChangedPlace(scans=np.unique(owners[members]), x=float(centre[0]),
                                    y=float(centre[1]), points=int(members.sum())))
     return tuple(sorted(places, key=lambda place: -place.points))
+
+
+_EXTENT_SAMPLE = 2000  # pairs whose end points show a region's extent: bounded cost
+
+
+def _spans_beyond_changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                          settings: ExplanationSettings) -> bool:
+    """Whether most deep inconsistent end points of the pairs `rows` lie in places wider than
+    any change: a gross error crosses whole walls and rooms (places of 5-40 m on displaced
+    copies), people, doors and furniture make places of a metre or two."""
+    rows = rows[::max(1, -(-rows.size // _EXTENT_SAMPLE))]
+    points, _ = pair_endpoints(scans, result, rows, settings.change_depth)
+    if not len(points):
+        return False
+    labels = _places(points, settings.change_cell)
+    low = np.full((labels.max() + 1, 2), np.inf)
+    high = np.full((labels.max() + 1, 2), -np.inf)
+    np.minimum.at(low, labels, points)
+    np.maximum.at(high, labels, points)
+    extent = np.hypot(*(high - low).T)
+    return bool(np.count_nonzero(extent[labels] > settings.max_change_extent) * 2 > len(points))
 
 
 def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessment:
@@ -493,6 +653,12 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     moments = _PointMoments.of(scans)
     displacement = moments.displacement(transforms, pairs[:, 1])
     codes = _classify(registrations, task_of_pair, passes, displacement, settings)
+    candidates = np.unique(task_of_pair[codes == _CLASS_CODE[MISALIGNED]])
+    unconfirmed = np.ones(len(tasks), dtype=bool)
+    unconfirmed[candidates] = ~_confirmed(scans, result, tasks[candidates],
+                                          registrations.world_transforms()[candidates], settings)
+    # a correction that breaks as much as it mends explains nothing: the failure is a change
+    codes[(codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]] = _CLASS_CODE[CHANGE]
     misaligned = codes == _CLASS_CODE[MISALIGNED]
     unexplained = (codes == _CLASS_CODE[CHANGE]) | (codes == _CLASS_CODE[UNREGISTERED])
     # Changes are local: a scan most of whose overlaps fail beyond any small correction sees
@@ -503,7 +669,7 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     beyond = codes == _CLASS_CODE[UNREGISTERED]
     flagged = _cascaded(result, pairs, misaligned | beyond) | gross
     bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
-    misalignments = _regions(scans, moments, pairs, bad, codes, transforms,
+    misalignments = _regions(scans, result, rows, moments, bad, codes, transforms,
                              registrations.covariances[task_of_pair], task_of_pair, flagged,
                              settings)
     flagged = _region_scans(misalignments, scans.scan_count)

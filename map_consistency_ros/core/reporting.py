@@ -48,6 +48,8 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
         'explanation': assessment.settings.as_dict(),
         'explained_pairs': assessment.class_counts(),
         'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
+        'local_distortion_m': assessment.local_distortion,
+        'distorted': assessment.distorted,
         'misalignments': [{
             'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
             'dx_m': region.correction[0], 'dy_m': region.correction[1],

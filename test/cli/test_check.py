@@ -54,7 +54,9 @@ def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
     assert code == 1
     assert 'INCONSISTENT: 1 misaligned region (largest 0.' in out
     assert 'misaligned region     scans ' in out and 'dx -0.39 m' in out
-    (region,) = json.loads(report.read_text())['misalignments']
+    content = json.loads(report.read_text())
+    assert content['distorted'] is False and 0.0 <= content['local_distortion_m'] < 0.1
+    (region,) = content['misalignments']
     assert min(region['scans']) >= 30 and max(region['reference_scans']) < 30
     # The correction moves the displaced half back.
     assert region['dx_m'] == pytest.approx(-0.4, abs=0.01)
