@@ -460,6 +460,15 @@ def _resolved_fraction(scans: ScanSet, result: ConsistencyResult, moved: np.ndar
     return 1.0 - np.count_nonzero(~passes) / failing
 
 
+def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> bool:
+    """Whether most `pairs` (P, 2) join scans within a submap's reach of each other in time:
+    the world does not change between consecutive keyframes (people aside, who make small
+    places), so such failures are a break of the chain itself, a block displaced against its
+    own neighbours, not a revisit of a changed room."""
+    reach = 2 * settings.margin + settings.block
+    return bool(np.count_nonzero(pairs[:, 1] - pairs[:, 0] <= reach) * 2 > len(pairs))
+
+
 def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
              moments: _PointMoments, bad: np.ndarray, codes: np.ndarray,
              transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
@@ -499,7 +508,9 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
             # least a block, spread wider than any change, that several registrations fail on
             if (np.unique(task_of_pair[rows]).size < settings.min_registrations
                     or _longest_run(moved, settings.block) < settings.block
-                    or not _spans_beyond_changes(scans, result, explained[rows], settings)):
+                    or not (_mostly_consecutive(pairs[rows], settings)
+                            or _spans_beyond_changes(scans, result, explained[rows],
+                                                     settings))):
                 continue
             correction = np.full(3, np.nan)
             spread = np.full(3, np.nan)
