@@ -9,7 +9,7 @@ consistent when no scan fails. Notation as in statistics.py.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -83,6 +83,14 @@ class ConsistencyResult:
     critical_counts: np.ndarray  # (N,) nu-hat of each scan
     inconsistent: np.ndarray  # (N,) bool: the scan failed its cascaded test
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
+    # (N,) s_i fitted on the map's own temporal neighbours, where `scales` come from an
+    # incremental solution; None where they are the map's own
+    map_scales: np.ndarray | None = None
+
+    @property
+    def own_scales(self) -> np.ndarray:
+        """(N,) the local scales of the map itself: how its scans agree with their neighbours."""
+        return self.scales if self.map_scales is None else self.map_scales
 
     @property
     def consistent(self) -> bool:
@@ -259,16 +267,25 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
     if reference.ranges.shape != scans.ranges.shape:
         raise ValueError('reference scans must be the same scans as the map scans')
     keep = parameters.trim_largest
+    count = scans.ranges.shape[0]
     measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress)
+    # The map's own local pairs are the candidate pairs of temporal neighbours: measured already.
+    own = map_local_scales(measures, count, parameters)
     if reference_scans is None:
-        # The local pairs are the candidate pairs of temporal neighbours: measured already.
-        gap = measures.pairs[:, 1] - measures.pairs[:, 0]
-        local = _select(measures, gap <= max(parameters.local_window // 2, 1))
-    else:
-        local = pair_measures(reference, local_pairs(reference, parameters.local_window),
-                              keep_largest=keep)
-    scales = local_scales(local, scans.ranges.shape[0], parameters)
-    return evaluate_pairs(measures, scales, scans.ranges.shape[0], parameters)
+        return evaluate_pairs(measures, own, count, parameters)
+    local = pair_measures(reference, local_pairs(reference, parameters.local_window),
+                          keep_largest=keep)
+    result = evaluate_pairs(measures, local_scales(local, count, parameters), count, parameters)
+    return replace(result, map_scales=own)
+
+
+def map_local_scales(measures: PairMeasures, scan_count: int,
+                     parameters: ConsistencyParameters) -> np.ndarray:
+    """local_scales fitted on the map itself, from its measured pairs (P, any order): those
+    joining temporal neighbours within the local window."""
+    gap = np.abs(measures.pairs[:, 1] - measures.pairs[:, 0])
+    return local_scales(_select(measures, gap <= max(parameters.local_window // 2, 1)),
+                        scan_count, parameters)
 
 
 def average_inconsistency(measures: PairMeasures) -> float:

@@ -134,11 +134,12 @@ class Assessment:
 
     @property
     def local_distortion(self) -> float:
-        """Metres: the mean inconsistency distance between the median scan and its temporal
-        neighbours, sqrt(2 / pi) times the median local scale s_i (the half-normal mean)."""
+        """Metres: the mean inconsistency distance between the median scan of the map and its
+        temporal neighbours, sqrt(2 / pi) times the median of the map's own local scales s_i
+        (the half-normal mean; not those of an incremental solution the test may use)."""
         if self.result.scan_count == 0:
             return 0.0
-        return float(np.median(self.result.scales)) * math.sqrt(2.0 / math.pi)
+        return float(np.median(self.result.own_scales)) * math.sqrt(2.0 / math.pi)
 
     @property
     def distorted(self) -> bool:
