@@ -9,7 +9,7 @@ consistent when no scan fails. Notation as in statistics.py.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -74,6 +74,8 @@ class ConsistencyResult:
     pairs: np.ndarray  # (P, 2) scan indices i < j of pairs with overlapping extents
     distance_sum: np.ndarray  # (P,) M_ij
     point_count: np.ndarray  # (P,) n_ij
+    trimmed_sum: np.ndarray  # (P,) M_ij without the pair's trim_largest largest distances
+    trimmed_count: np.ndarray  # (P,) n_ij likewise
     tested: np.ndarray  # (P,) bool: enough points for the pairwise test
     statistic: np.ndarray  # (P,) Psi_ij of the tested pairs (robustified), NaN elsewhere
     failed: np.ndarray  # (P,) bool
@@ -83,14 +85,15 @@ class ConsistencyResult:
     critical_counts: np.ndarray  # (N,) nu-hat of each scan
     inconsistent: np.ndarray  # (N,) bool: the scan failed its cascaded test
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
-    # (N,) s_i fitted on the map's own temporal neighbours, where `scales` come from an
-    # incremental solution; None where they are the map's own
-    map_scales: np.ndarray | None = None
 
-    @property
     def own_scales(self) -> np.ndarray:
-        """(N,) the local scales of the map itself: how its scans agree with their neighbours."""
-        return self.scales if self.map_scales is None else self.map_scales
+        """(N,) s_i fitted on the map itself, from its measured pairs that join temporal
+        neighbours: how its scans agree with their neighbours. The same as `scales` unless the
+        test fitted those on an incremental solution."""
+        local = np.abs(self.pairs[:, 1] - self.pairs[:, 0]) <= max(
+            self.parameters.local_window // 2, 1)
+        return _scales_from_sums(self.pairs[local], self.trimmed_sum[local],
+                                 self.trimmed_count[local], self.scan_count, self.parameters)
 
     @property
     def consistent(self) -> bool:
@@ -149,9 +152,15 @@ def local_scales(measures: PairMeasures, scan_count: int,
     Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
     """
     distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    return _scales_from_sums(measures.pairs, distance_sum, count, scan_count, parameters)
+
+
+def _scales_from_sums(pairs: np.ndarray, distance_sum: np.ndarray, count: np.ndarray,
+                      scan_count: int, parameters: ConsistencyParameters) -> np.ndarray:
+    """local_scales from the local pairs' trimmed (M_ij, n_ij)."""
     usable = count >= parameters.min_points
     bounds = statistics.scale_bound(distance_sum[usable], count[usable], parameters.local_alpha)
-    first, second = measures.pairs[usable, 0], measures.pairs[usable, 1]
+    first, second = pairs[usable, 0], pairs[usable, 1]
     scales = np.zeros(scan_count)
     np.maximum.at(scales, first, bounds)
     np.maximum.at(scales, second, bounds)
@@ -200,6 +209,7 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
     pairs = measures.pairs
     pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]
+    robust = _robust_sums(measures, parameters.trim_largest) if robust is None else robust
     tested, statistic = robust_statistic(measures, pair_scale, parameters, robust)
     failed = tested & (statistic > statistics.normal_quantile(parameters.alpha))
     overlap_counts = (np.bincount(pairs[tested, 0], minlength=scan_count)
@@ -213,7 +223,7 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
         inconsistent = _filter_isolated_flags(inconsistent, parameters.flag_window)
     return ConsistencyResult(
         pairs=pairs, distance_sum=measures.distance_sum, point_count=measures.point_count,
-        tested=tested, statistic=statistic, failed=failed, scales=scales,
+        trimmed_sum=robust[0], trimmed_count=robust[1], tested=tested, statistic=statistic, failed=failed, scales=scales,
         overlap_counts=overlap_counts, failed_counts=failed_counts, critical_counts=critical,
         inconsistent=inconsistent, parameters=parameters)
 
@@ -267,25 +277,16 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
     if reference.ranges.shape != scans.ranges.shape:
         raise ValueError('reference scans must be the same scans as the map scans')
     keep = parameters.trim_largest
-    count = scans.ranges.shape[0]
     measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress)
-    # The map's own local pairs are the candidate pairs of temporal neighbours: measured already.
-    own = map_local_scales(measures, count, parameters)
     if reference_scans is None:
-        return evaluate_pairs(measures, own, count, parameters)
-    local = pair_measures(reference, local_pairs(reference, parameters.local_window),
-                          keep_largest=keep)
-    result = evaluate_pairs(measures, local_scales(local, count, parameters), count, parameters)
-    return replace(result, map_scales=own)
-
-
-def map_local_scales(measures: PairMeasures, scan_count: int,
-                     parameters: ConsistencyParameters) -> np.ndarray:
-    """local_scales fitted on the map itself, from its measured pairs (P, any order): those
-    joining temporal neighbours within the local window."""
-    gap = np.abs(measures.pairs[:, 1] - measures.pairs[:, 0])
-    return local_scales(_select(measures, gap <= max(parameters.local_window // 2, 1)),
-                        scan_count, parameters)
+        # The local pairs are the candidate pairs of temporal neighbours: measured already.
+        gap = measures.pairs[:, 1] - measures.pairs[:, 0]
+        local = _select(measures, gap <= max(parameters.local_window // 2, 1))
+    else:
+        local = pair_measures(reference, local_pairs(reference, parameters.local_window),
+                              keep_largest=keep)
+    scales = local_scales(local, scans.ranges.shape[0], parameters)
+    return evaluate_pairs(measures, scales, scans.ranges.shape[0], parameters)
 
 
 def average_inconsistency(measures: PairMeasures) -> float:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from map_consistency_ros.core import statistics
+from map_consistency_ros.core import se2, statistics
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   Progress, check_consistency,
                                                   inconsistent_endpoints, pair_endpoints,
@@ -131,15 +131,7 @@ class Assessment:
     misaligned_scans: np.ndarray  # (N,) bool: failed the cascaded test on misaligned pairs
     misalignments: tuple[Misalignment, ...]
     changes: tuple[ChangedPlace, ...]
-
-    @property
-    def local_distortion(self) -> float:
-        """Metres: the mean inconsistency distance between the median scan of the map and its
-        temporal neighbours, sqrt(2 / pi) times the median of the map's own local scales s_i
-        (the half-normal mean; not those of an incremental solution the test may use)."""
-        if self.result.scan_count == 0:
-            return 0.0
-        return float(np.median(self.result.own_scales)) * math.sqrt(2.0 / math.pi)
+    local_distortion: float  # metres (_local_distortion)
 
     @property
     def distorted(self) -> bool:
@@ -187,6 +179,15 @@ class Assessment:
         count = len(self.misalignments)
         regions = f'{count} misaligned region{"s" if count > 1 else ""}'
         return f'{verdict}: {distortion}{regions} ({size}); {changes}'
+
+
+def _local_distortion(result: ConsistencyResult) -> float:
+    """Metres: the mean inconsistency distance between the median scan of the map and its
+    temporal neighbours, the half-normal mean sqrt(2 / pi) s of the median of the map's own
+    local scales s_i (not those of an incremental solution the test may have used)."""
+    if result.scan_count == 0:
+        return 0.0
+    return float(np.median(result.own_scales())) * statistics.HALFNORMAL_MEAN_FACTOR
 
 
 def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
@@ -360,13 +361,8 @@ def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.
     the tolerance (RMS) of where the region's correction places them: a loop-closure error
     moves a stretch rigidly, so its submaps agree."""
     later = pairs[rows, 1]
-    # |T_k p - C p| = |D p| with D = C^-1 T_k (rotation theta_k - theta_c, translation
-    # R_c^T (t_k - t_c))
-    cos, sin = math.cos(correction[2]), math.sin(correction[2])
-    shift = transforms[rows, :2] - correction[:2]
-    relative = np.stack([cos * shift[:, 0] + sin * shift[:, 1],
-                         -sin * shift[:, 0] + cos * shift[:, 1],
-                         transforms[rows, 2] - correction[2]], axis=1)
+    # |T_k p - C p| = |C^-1 T_k p - p|: C^-1 T_k moves the points as far from C's placement
+    relative = se2.relative(correction, transforms[rows])
     agree = moments.displacement(relative, later) <= settings.misalignment_tolerance
     return int(np.unique(task_of_pair[rows[agree]]).size)
 
@@ -383,6 +379,13 @@ def _longest_run(scans: np.ndarray, gap: int) -> int:
 _CONFIRM_SAMPLE = 36  # overlaps re-measured per registration: enough for a share, bounded
 
 
+def _spans(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The integers of the ranges [low_k, high_k) one after another, and the k of each."""
+    lengths = high - low
+    owner = np.repeat(np.arange(lengths.size), lengths)
+    return np.repeat(low - np.cumsum(lengths) + lengths, lengths) + np.arange(owner.size), owner
+
+
 def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The tested pairs between the reference and the query submap of each task (r0, r1, q0,
@@ -395,16 +398,10 @@ def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
     rows = np.concatenate([tested, tested])
     order = np.argsort(keys, kind='stable')
     keys, rows = keys[order], rows[order]
-    task_of_scan = np.concatenate([np.full(high - low, index) for index, (low, high)
-                                   in enumerate(tasks[:, :2])] or [np.zeros(0, np.int64)])
-    scan = np.concatenate([np.arange(low, high) for low, high in tasks[:, :2]]
-                          or [np.zeros(0, np.int64)])
-    low = np.searchsorted(keys, scan * count + tasks[task_of_scan, 2])
-    high = np.searchsorted(keys, scan * count + tasks[task_of_scan, 3])
-    lengths = high - low
-    starts = np.repeat(low - np.cumsum(lengths) + lengths, lengths)
-    picked = starts + np.arange(int(lengths.sum()))
-    task_ids = np.repeat(task_of_scan, lengths)
+    scan, task_of_scan = _spans(tasks[:, 0], tasks[:, 1])  # the reference scans of each task
+    picked, of_scan = _spans(np.searchsorted(keys, scan * count + tasks[task_of_scan, 2]),
+                             np.searchsorted(keys, scan * count + tasks[task_of_scan, 3]))
+    task_ids = task_of_scan[of_scan]
     if picked.size:  # evenly thin each task's overlaps (contiguous per task) to the sample
         task_total = np.bincount(task_ids, minlength=len(tasks))
         rank = np.arange(picked.size) - np.repeat(np.cumsum(task_total) - task_total,
@@ -428,11 +425,22 @@ def _confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
     rows, task_ids = _task_overlaps(result, tasks)
     pairs = result.pairs[rows]
     in_query = (pairs >= tasks[task_ids, 2:3]) & (pairs < tasks[task_ids, 3:4])
-    oriented = np.where(in_query[:, :1] & ~in_query[:, 1:], pairs[:, ::-1], pairs)
-    passes = _corrected_pairs_pass(scans, result, oriented, transforms[task_ids])
-    failing = np.bincount(task_ids, weights=result.failed[rows], minlength=len(tasks))
-    after = np.bincount(task_ids, weights=~passes, minlength=len(tasks))
+    failing, after = _failing_before_after(scans, result, rows, in_query[:, 0] & ~in_query[:, 1],
+                                           transforms[task_ids], task_ids, len(tasks))
     return (failing > 0) & (failing - after >= settings.min_resolved_fraction * failing)
+
+
+def _failing_before_after(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                          first_moves: np.ndarray, transforms: np.ndarray, groups: np.ndarray,
+                          group_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(G,) twice, per group of the tested pairs `rows` of `result`: how many fail as they
+    are, and how many fail with one scan of each pair moved by its world transform (the first
+    where `first_moves`, else the second)."""
+    pairs = result.pairs[rows]
+    oriented = np.where(first_moves[:, None], pairs[:, ::-1], pairs)
+    passes = _corrected_pairs_pass(scans, result, oriented, transforms)
+    return (np.bincount(groups, weights=result.failed[rows], minlength=group_count),
+            np.bincount(groups, weights=~passes, minlength=group_count))
 
 
 _RESOLVED_SAMPLE = 2000  # overlaps re-measured per region: enough for a share, bounded cost
@@ -441,8 +449,9 @@ _RESOLVED_SAMPLE = 2000  # overlaps re-measured per region: enough for a share, 
 def _resolved_fraction(scans: ScanSet, result: ConsistencyResult, moved: np.ndarray,
                        reference: np.ndarray, correction: np.ndarray) -> float:
     """The share of the failing tested pairs between `moved` and `reference` scans that pass
-    with `moved` placed by the world transform `correction`, net of the passing pairs it breaks:
-    a region's correction must mend what its registrations mend one by one."""
+    with `moved` placed by the world transform `correction`, net of the passing pairs it breaks
+    (0 when none fails): a region's correction must mend what its registrations mend one by
+    one."""
     in_moved = np.zeros(result.scan_count, dtype=bool)
     in_moved[moved] = True
     in_reference = np.zeros(result.scan_count, dtype=bool)
@@ -451,14 +460,10 @@ def _resolved_fraction(scans: ScanSet, result: ConsistencyResult, moved: np.ndar
     rows = np.flatnonzero(result.tested & ((in_moved[first] & in_reference[second])
                                            | (in_reference[first] & in_moved[second])))
     rows = rows[::max(1, -(-rows.size // _RESOLVED_SAMPLE))]
-    failing = int(np.count_nonzero(result.failed[rows]))
-    if failing == 0:
-        return 0.0
-    oriented = result.pairs[rows]
-    oriented = np.where(in_moved[oriented[:, :1]], oriented[:, ::-1], oriented)
-    passes = _corrected_pairs_pass(scans, result, oriented,
-                                   np.repeat(correction[None], rows.size, axis=0))
-    return 1.0 - np.count_nonzero(~passes) / failing
+    (failing,), (after,) = _failing_before_after(
+        scans, result, rows, in_moved[result.pairs[rows, 0]],
+        np.repeat(correction[None], rows.size, axis=0), np.zeros(rows.size, dtype=np.int64), 1)
+    return 0.0 if failing == 0 else 1.0 - after / failing
 
 
 def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> bool:
@@ -585,7 +590,7 @@ def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessme
                       pair_classes=np.zeros(0, np.int64), pair_corrections=np.zeros((0, 3)),
                       pair_displacements=np.zeros(0),
                       misaligned_scans=np.zeros(result.scan_count, dtype=bool),
-                      misalignments=(), changes=())
+                      misalignments=(), changes=(), local_distortion=_local_distortion(result))
 
 
 class RegistrationCache:
@@ -660,7 +665,8 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     registrations = (register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
                                       registration) if cache is None
                      else cache.register(scans, tasks, registration))
-    transforms = registrations.world_transforms()[task_of_pair]
+    task_transforms = registrations.world_transforms()
+    transforms = task_transforms[task_of_pair]
     passes = _corrected_pairs_pass(scans, result, pairs, transforms)
     moments = _PointMoments.of(scans)
     displacement = moments.displacement(transforms, pairs[:, 1])
@@ -668,7 +674,7 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     candidates = np.unique(task_of_pair[codes == _CLASS_CODE[MISALIGNED]])
     unconfirmed = np.ones(len(tasks), dtype=bool)
     unconfirmed[candidates] = ~_confirmed(scans, result, tasks[candidates],
-                                          registrations.world_transforms()[candidates], settings)
+                                          task_transforms[candidates], settings)
     # a correction that breaks as much as it mends explains nothing: the failure is a change
     codes[(codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]] = _CLASS_CODE[CHANGE]
     misaligned = codes == _CLASS_CODE[MISALIGNED]
@@ -688,7 +694,8 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     changes = _changes(scans, result, rows[codes == _CLASS_CODE[CHANGE]], settings)
     return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
                       pair_corrections=transforms, pair_displacements=displacement,
-                      misaligned_scans=flagged, misalignments=misalignments, changes=changes)
+                      misaligned_scans=flagged, misalignments=misalignments, changes=changes,
+                      local_distortion=_local_distortion(result))
 
 
 def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,

@@ -23,7 +23,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -31,8 +31,7 @@ import numpy as np
 from map_consistency_ros.core import se2
 # _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  _robust_sums, evaluate_pairs, local_scales,
-                                                  map_local_scales)
+                                                  _robust_sums, evaluate_pairs, local_scales)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
@@ -691,11 +690,9 @@ class ConsistencyMonitor:
             in_order = np.array_equal(order, np.arange(keyframes.count))
             ranks = None if in_order else _rank_of_slot(order)
             scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
-            current = self._current.measures(ranks)
-            result = evaluate_pairs(current, scales, keyframes.count, self.parameters,
-                                    robust=self._current.robust())
-            self._result = replace(result, map_scales=map_local_scales(
-                current, keyframes.count, self.parameters))
+            self._result = evaluate_pairs(self._current.measures(ranks), scales,
+                                          keyframes.count, self.parameters,
+                                          robust=self._current.robust())
         return self._result
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:

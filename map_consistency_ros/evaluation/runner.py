@@ -23,8 +23,7 @@ import numpy as np
 from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoods, map_statistic,
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
-                                                  evaluate_pairs, local_pairs, local_scales,
-                                                  map_local_scales)
+                                                  evaluate_pairs, local_pairs, local_scales)
 from map_consistency_ros.core.explanation import (ExplanationSettings, RegistrationCache,
                                                   explain)
 from map_consistency_ros.core.measure import PairMeasures, pair_measures
@@ -183,10 +182,9 @@ def two_stage_flags(item: tuple[SuiteMap, MeasuredMap], settings: MeasureSetting
     flags = np.zeros((len(alphas), len(tolerances)), dtype=bool)
     for row, alpha in enumerate(alphas):
         parameters = replace(settings.test, alpha=alpha)
-        result = replace(evaluate_pairs(
+        result = evaluate_pairs(
             measured.measures, local_scales(measured.local, scans.scan_count, parameters),
-            scans.scan_count, parameters), map_scales=map_local_scales(
-                measured.measures, scans.scan_count, parameters))
+            scans.scan_count, parameters)
         for column, tolerance in enumerate(tolerances):
             flags[row, column] = not explain(
                 scans, result, ExplanationSettings(misalignment_tolerance=tolerance),

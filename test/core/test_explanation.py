@@ -138,6 +138,10 @@ def test_settings_are_checked():
         ExplanationSettings(misalignment_tolerance=-1.0)
     with pytest.raises(ValueError, match='gross_fraction'):
         ExplanationSettings(gross_fraction=1.0)
+    for name, value in (('min_region_scans', 0), ('min_resolved_fraction', 1.5),
+                        ('max_change_extent', 0.0)):
+        with pytest.raises(ValueError, match=name):
+            ExplanationSettings(**{name: value})
     with pytest.raises(ValueError, match='scans for a result'):
         explain(ScanSet.from_ranges(np.ones((2, 4)), np.zeros((2, 3)),
                                     carmen.SensorModel(-1.0, 0.5, 8.0)),
