@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from map_consistency_ros.core import se2, statistics
@@ -288,13 +289,14 @@ def _corrected_pairs_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.n
 def _corrected_chunk_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
                           transforms: np.ndarray) -> np.ndarray:
     first, second = pairs[:, 0], pairs[:, 1]
-    fixed, moved = scans.take(first), scans.moved(second, transforms)
-    # pair k is scans (2k, 2k + 1) of one set: fixed i and moved j side by side
+    # one set of the fixed scans, each once, followed by the moved j of every pair
+    fixed_rows, fixed_of_pair = np.unique(first, return_inverse=True)
+    fixed, moved = scans.take(fixed_rows), scans.moved(second, transforms)
     placed = ScanSet.from_parts(scans.model, **{
-        name: np.stack([getattr(fixed, name), getattr(moved, name)], axis=1).reshape(
-            -1, *getattr(fixed, name).shape[1:]) for name in SCAN_ARRAYS})
-    index = np.arange(len(pairs))
-    measures = pair_measures(placed, np.stack([2 * index, 2 * index + 1], axis=1),
+        name: np.concatenate([getattr(fixed, name), getattr(moved, name)])
+        for name in SCAN_ARRAYS})
+    measures = pair_measures(placed, np.stack([fixed_of_pair.reshape(-1),
+                                               fixed_rows.size + np.arange(len(pairs))], axis=1),
                              keep_largest=max(result.parameters.trim_largest, 1))
     scale = np.maximum(result.scales[first], result.scales[second])
     tested, statistic = robust_statistic(measures, scale, result.parameters)
@@ -338,20 +340,28 @@ def _cascaded(result: ConsistencyResult, pairs: np.ndarray, bad: np.ndarray,
 
 
 def _components(scan_count: int, links: np.ndarray) -> np.ndarray:
-    """Union-find labels of scans joined by the rows of `links` (L, 2)."""
-    parent = np.arange(scan_count)
+    """Union-find labels (the smallest member) of nodes joined by the rows of `links` (L, 2)."""
+    return _union_find(scan_count, np.ascontiguousarray(links, dtype=np.int64).reshape(-1, 2))
 
-    def root(node: int) -> int:
-        while parent[node] != node:
-            parent[node] = parent[parent[node]]
-            node = parent[node]
-        return node
 
-    for a, b in links:
-        ra, rb = root(int(a)), root(int(b))
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    return np.array([root(node) for node in range(scan_count)])
+@numba.njit(cache=True)
+def _union_find(count: int, links: np.ndarray) -> np.ndarray:
+    parent = np.arange(count)
+    for row in range(links.shape[0]):
+        a, b = _root(parent, links[row, 0]), _root(parent, links[row, 1])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    for node in range(count):
+        parent[node] = _root(parent, node)
+    return parent
+
+
+@numba.njit(cache=True)
+def _root(parent: np.ndarray, node: int) -> int:
+    while parent[node] != node:
+        parent[node] = parent[parent[node]]
+        node = parent[node]
+    return node
 
 
 def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.ndarray,
@@ -539,13 +549,15 @@ def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> n
 def _places(points: np.ndarray, cell: float) -> np.ndarray:
     """Labels (M,) of points (M, 2) joined through neighbouring cells of size `cell`."""
     cells = np.floor(points / cell).astype(np.int64)
-    unique, cell_of_point = np.unique(cells, axis=0, return_inverse=True)
-    lookup = {tuple(item): index for index, item in enumerate(unique)}
-    links = [(index, lookup[(item[0] + dx, item[1] + dy)])
-             for index, item in enumerate(unique) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-             if (item[0] + dx, item[1] + dy) in lookup]
-    labels = _components(len(unique), np.asarray(links, dtype=np.int64).reshape(-1, 2))
-    return labels[cell_of_point.reshape(-1)]
+    cells -= cells.min(axis=0) - 1  # every neighbour of a cell has non-negative coordinates
+    width = int(cells[:, 1].max()) + 2
+    unique, cell_of_point = np.unique(cells[:, 0] * width + cells[:, 1], return_inverse=True)
+    # half of the eight neighbours suffices: a link joins both ways
+    neighbours = unique[:, None] + np.array([width - 1, width, width + 1, 1])[None]
+    found = np.minimum(np.searchsorted(unique, neighbours), unique.size - 1)
+    cell_rows, _ = np.nonzero(unique[found] == neighbours)
+    links = np.stack([cell_rows, found[unique[found] == neighbours]], axis=1)
+    return _components(unique.size, links)[cell_of_point.reshape(-1)]
 
 
 def _changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,

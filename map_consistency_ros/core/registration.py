@@ -91,25 +91,39 @@ class Registrations:
 
 def surface_points(endpoints: np.ndarray, valid: np.ndarray) -> SurfacePoints:
     """Valid end points (N, K, 2) / (N, K) with normals from their beam neighbours."""
-    before, after = np.roll(endpoints, 1, axis=1), np.roll(endpoints, -1, axis=1)
-    valid_before, valid_after = np.roll(valid, 1, axis=1), np.roll(valid, -1, axis=1)
-    valid_before[:, 0] = False
-    valid_after[:, -1] = False
-    x, y = endpoints[..., 0], endpoints[..., 1]
-    close = ((np.hypot(before[..., 0] - x, before[..., 1] - y) < SURFACE_GAP)
-             & (np.hypot(after[..., 0] - x, after[..., 1] - y) < SURFACE_GAP))
-    has_normal = valid & valid_before & valid_after & close
-    tangent = after - before
-    length = np.hypot(tangent[..., 0], tangent[..., 1])
-    has_normal &= length > 1e-9
-    safe = np.where(has_normal, length, 1.0)
-    normals = np.stack([-tangent[..., 1] / safe, tangent[..., 0] / safe], axis=-1)
-    normals[~has_normal] = 0.0
-    counts = valid.sum(axis=1)
+    valid = np.ascontiguousarray(valid, dtype=np.bool_)
     offsets = np.zeros(valid.shape[0] + 1, dtype=np.int64)
-    np.cumsum(counts, out=offsets[1:])
-    return SurfacePoints(points=np.ascontiguousarray(endpoints[valid]),
-                         normals=np.ascontiguousarray(normals[valid]), offsets=offsets)
+    np.cumsum(valid.sum(axis=1), out=offsets[1:])
+    points, normals = _surface_arrays(np.ascontiguousarray(endpoints, dtype=np.float64), valid,
+                                      offsets)
+    return SurfacePoints(points=points, normals=normals, offsets=offsets)
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _surface_arrays(endpoints: np.ndarray, valid: np.ndarray, offsets: np.ndarray) -> tuple:
+    """The valid end points flattened scan by scan, (M, 2), and their unit normals (M, 2): of
+    the line through the two beam neighbours, zero where either is invalid or further than
+    SURFACE_GAP (no one surface)."""
+    scans, beams = valid.shape
+    points = np.empty((offsets[-1], 2))
+    normals = np.zeros((offsets[-1], 2))
+    for scan in numba.prange(scans):
+        row = offsets[scan]
+        for beam in range(beams):
+            if not valid[scan, beam]:
+                continue
+            x, y = endpoints[scan, beam, 0], endpoints[scan, beam, 1]
+            points[row, 0], points[row, 1] = x, y
+            if 0 < beam < beams - 1 and valid[scan, beam - 1] and valid[scan, beam + 1]:
+                bx, by = endpoints[scan, beam - 1, 0], endpoints[scan, beam - 1, 1]
+                ax, ay = endpoints[scan, beam + 1, 0], endpoints[scan, beam + 1, 1]
+                length = math.hypot(ax - bx, ay - by)
+                if (math.hypot(bx - x, by - y) < SURFACE_GAP
+                        and math.hypot(ax - x, ay - y) < SURFACE_GAP and length > 1e-9):
+                    normals[row, 0] = -(ay - by) / length
+                    normals[row, 1] = (ax - bx) / length
+            row += 1
+    return points, normals
 
 
 @numba.njit(cache=True)
@@ -165,12 +179,14 @@ def _grid(points: np.ndarray, cell: float, margin: float):
 def _nearest(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: float,
              starts: np.ndarray, items: np.ndarray, px: float, py: float, gate: float) -> int:
     """Index of the nearest point within `gate` of p, -1 where none."""
-    reach = int(math.ceil(gate / cell))
-    cx = int(math.floor((px - x0) / cell))
-    cy = int(math.floor((py - y0) / cell))
+    # only the cells the gate's square touches: at fine gates one to four, not nine
+    low_x = max(int(math.floor((px - gate - x0) / cell)), 0)
+    high_x = min(int(math.floor((px + gate - x0) / cell)) + 1, nx)
+    low_y = max(int(math.floor((py - gate - y0) / cell)), 0)
+    high_y = min(int(math.floor((py + gate - y0) / cell)) + 1, ny)
     best, best2 = -1, gate * gate
-    for gx in range(max(cx - reach, 0), min(cx + reach + 1, nx)):
-        for gy in range(max(cy - reach, 0), min(cy + reach + 1, ny)):
+    for gx in range(low_x, high_x):
+        for gy in range(low_y, high_y):
             key = gx * ny + gy
             for position in range(starts[key], starts[key + 1]):
                 index = items[position]
@@ -213,7 +229,8 @@ def _normal_equations(residuals: np.ndarray, jacobians: np.ndarray, matched: int
     """H and g of the matched rows without the `trim` fraction of largest |residual|; returns
     the rows kept and their sum of squares."""
     magnitude = np.abs(residuals[:matched])
-    limit = np.sort(magnitude)[min(int((1.0 - trim) * matched), matched - 1)]
+    rank = min(int((1.0 - trim) * matched), matched - 1)
+    limit = np.partition(magnitude, rank)[rank]  # linear time: a full sort dominated a step
     hessian[:, :] = 0.0
     gradient[:] = 0.0
     kept, square = 0, 0.0

@@ -275,3 +275,21 @@ def test_a_chain_bent_everywhere_is_distorted(intel):
     # the paper's verdict is the paper's, distortion or not
     strict = explain(_map(intel, poses=poses), assessment.result, ExplanationSettings(strict=True))
     assert strict.consistent == assessment.result.consistent
+
+
+def test_changed_places_join_points_through_neighbouring_cells():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from map_consistency_ros.core.explanation import _places
+    rng = np.random.default_rng(11)
+    points = np.concatenate([rng.normal(size=(600, 2)) * 4.0, rng.normal(size=(80, 2)) * 0.2 + 30])
+    labels = _places(points, 0.3)
+    # Oracle: points whose cells touch (8-neighbourhood) are joined, transitively.
+    cells = np.floor(points / 0.3).astype(int)
+    touching = np.abs(cells[:, None] - cells[None]).max(axis=2) <= 1
+    _, oracle = connected_components(coo_matrix(touching), directed=False)
+    assert 10 < np.unique(oracle).size < 600
+    same = labels[:, None] == labels[None]
+    np.testing.assert_array_equal(same, oracle[:, None] == oracle[None])
+    assert _places(points[:1], 0.3).tolist() == [0]

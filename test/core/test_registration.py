@@ -89,3 +89,40 @@ def test_undetermined_and_bad_tasks(intel):
             register_submaps(surfaces, np.array([task]))
     with pytest.raises(ValueError, match='gates must shrink'):
         RegistrationSettings(gates=(0.1, 0.5))
+
+
+@pytest.mark.parametrize('gate', [0.5, 0.25, 0.12])
+def test_the_grid_lookup_finds_the_nearest_point_within_the_gate(intel, gate):
+    from scipy.spatial import cKDTree
+
+    from map_consistency_ros.core.registration import _grid, _nearest
+    surfaces = surface_points(_scans(intel, np.arange(100, 111)).endpoints,
+                              _scans(intel, np.arange(100, 111)).valid)
+    points = surfaces.points
+    queries = points[::7] + np.random.default_rng(5).normal(scale=0.2, size=(len(points[::7]), 2))
+    distance, oracle = cKDTree(points).query(queries, distance_upper_bound=gate)
+    x0, y0, nx, ny, starts, items = _grid(points, 0.25, 0.5)
+    found = np.array([_nearest(points, x0, y0, nx, ny, 0.25, starts, items, x, y, gate)
+                      for x, y in queries])
+    expected = np.where(np.isfinite(distance), oracle, -1)
+    assert (found >= 0).sum() > 0.3 * len(found)
+    np.testing.assert_array_equal(found, expected)
+
+
+def test_surface_normals_are_perpendicular_to_the_beam_neighbours(intel):
+    scans = _scans(intel, np.arange(300, 305))
+    surfaces = surface_points(scans.endpoints, scans.valid)
+    assert surfaces.offsets[-1] == scans.valid.sum() == len(surfaces.points)
+    np.testing.assert_array_equal(surfaces.points, scans.endpoints[scans.valid])
+    # An oracle on one scan: the chord between the two neighbours of every beam.
+    ends, valid = scans.endpoints[2], scans.valid[2]
+    rows = slice(surfaces.offsets[2], surfaces.offsets[3])
+    normals = np.zeros_like(ends)
+    for beam in range(1, len(ends) - 1):
+        chord = ends[beam + 1] - ends[beam - 1]
+        if (valid[beam - 1:beam + 2].all() and np.linalg.norm(chord) > 1e-9
+                and max(np.linalg.norm(ends[beam + 1] - ends[beam]),
+                        np.linalg.norm(ends[beam - 1] - ends[beam])) < 0.25):
+            normals[beam] = np.array([-chord[1], chord[0]]) / np.linalg.norm(chord)
+    assert np.count_nonzero(normals[valid].any(axis=1)) > 0.5 * valid.sum()
+    np.testing.assert_allclose(surfaces.normals[rows], normals[valid], atol=1e-12)
