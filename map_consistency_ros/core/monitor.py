@@ -71,12 +71,18 @@ class MonitorSettings:
     max_pose_extent: float = parameter(
         1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
         (1.0, 1e9))
+    max_partners: int = parameter(
+        300, 'a new keyframe is measured against at most about this many earlier overlapping '
+        'keyframes, every k-th by arrival, k fixed when it arrives: bounds the cost per keyframe '
+        'of streams that make every raw scan a keyframe; 0: all', '', (0, 1_000_000))
 
     def __post_init__(self) -> None:
         if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
             raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
         if self.max_buffered_scans < 1:
             raise ValueError('max_buffered_scans must be at least 1')
+        if self.max_partners < 0:
+            raise ValueError(f'max_partners must not be negative, got {self.max_partners}')
         for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size',
                      'max_pose_extent'):
             value = getattr(self, name)
@@ -262,6 +268,8 @@ class _Keyframes:
         self.poses = np.zeros((16, 3))
         self.incremental = np.zeros((16, 3))
         self.ranges = np.zeros((16, beams))
+        # pairs with earlier keyframes: every stride-th slot (1: all), fixed on arrival
+        self.stride = np.ones(16, dtype=np.int64)
 
     def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
                ranges: np.ndarray) -> int:
@@ -271,6 +279,7 @@ class _Keyframes:
             self.poses = np.concatenate([self.poses, np.zeros((grow, 3))])
             self.incremental = np.concatenate([self.incremental, np.zeros((grow, 3))])
             self.ranges = np.concatenate([self.ranges, np.zeros((grow, self.ranges.shape[1]))])
+            self.stride = np.concatenate([self.stride, np.ones(grow, dtype=np.int64)])
         slot = self.count
         self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
         self.ranges[slot] = ranges
@@ -664,7 +673,7 @@ class ConsistencyMonitor:
         placed = self._scans(changed)
         self._index.update(changed, placed.extents)
         self._current.drop_slots(changed, keyframes.count)
-        touching = self._index.pairs_touching(changed)
+        touching = self._within_budget(self._index.pairs_touching(changed), new)
         keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
         measured = 0
         if keys.size:
@@ -676,6 +685,18 @@ class ConsistencyMonitor:
         measured += self._update_local(order, _rank_of_slot(order)[new])
         self._result = None  # the statistics run once per snapshot, not per update
         return measured
+
+    def _within_budget(self, pairs: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """The pairs (i, j), i < j slots, the budget of j keeps: with every earlier slot, or
+        with every k-th one when more than `max_partners` overlapped j on arrival (k fixed
+        then, so that moves re-measure the same pairs). Thinning by slot keeps pairs with
+        every visit of a place; the local scales have pairs of their own (_update_local)."""
+        budget, stride = self.settings.max_partners, self._keyframes.stride
+        if budget and new.size:
+            earlier = np.bincount(pairs[:, 1], minlength=self._keyframes.count)[new]
+            stride[new] = np.maximum(1, -(-earlier // budget))
+        step = stride[pairs[:, 1]]
+        return pairs[(step == 1) | (pairs[:, 0] % step == pairs[:, 1] % step)]
 
     def _evaluate(self) -> ConsistencyResult | None:
         """The test on the current measures (computed at most once per change).

@@ -122,6 +122,32 @@ def test_loop_closure_measures_only_moved_pairs(intel):
     _assert_same_verdict(monitor.snapshot().result, oracle)
 
 
+def test_a_partner_budget_thins_the_pairs_of_dense_keyframes_stably(intel):
+    stamps, ranges, poses, model = _by_stamp(intel)
+    budget = 8
+    monitor = _stream(stamps, ranges, poses, model, MonitorSettings(max_partners=budget))
+    full = _oracle(ranges, poses, model)
+    overlapping = full.point_count > 0
+    oracle = {tuple(p): m for p, m in zip(full.pairs[overlapping].tolist(),
+                                          full.distance_sum[overlapping])}
+    kept = monitor.snapshot().result
+    later_partners = np.bincount(kept.pairs[:, 1], minlength=len(stamps))
+    assert np.bincount(full.pairs[overlapping][:, 1]).max() > 3 * budget  # the budget binds
+    assert later_partners.mean() <= budget and later_partners.max() <= 2 * budget
+    assert later_partners[10:].min() > 0  # every keyframe keeps pairs with earlier ones
+    assert len(kept.pairs) < 0.5 * overlapping.sum()
+    # what is kept is measured as the batch test measures it
+    for pair, distance_sum in zip(kept.pairs.tolist(), kept.distance_sum):
+        assert distance_sum == pytest.approx(oracle[tuple(pair)], rel=1e-9, abs=1e-12)
+    # a loop closure re-measures the pairs of the moved keyframes, leaves the others alone
+    half = len(stamps) // 2
+    monitor.update_trajectory(stamps, _dragged(poses, half))
+    after = monitor.snapshot().result
+    unmoved = {tuple(p) for p in kept.pairs.tolist() if p[1] < half}
+    assert {tuple(p) for p in after.pairs.tolist() if p[1] < half} == unmoved
+    assert np.bincount(after.pairs[:, 1], minlength=len(stamps)).mean() <= budget
+
+
 def test_small_moves_do_not_trigger_measures(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     monitor = ConsistencyMonitor(settings=MonitorSettings(move_tolerance=0.05))
@@ -343,6 +369,6 @@ def test_inconsistent_endpoints_are_the_points_inside_the_other_scan(intel):
 def test_settings_are_validated():
     for bad in [dict(laser_offset=(0.0, 0.0)), dict(laser_offset=(0.0, np.nan, 0.0)),
                 dict(max_buffered_scans=0), dict(stamp_tolerance=-1.0), dict(cell_size=0.0),
-                dict(move_tolerance=np.inf)]:
+                dict(move_tolerance=np.inf), dict(max_partners=-1)]:
         with pytest.raises(ValueError):
             MonitorSettings(**bad)
