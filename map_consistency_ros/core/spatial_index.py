@@ -89,9 +89,10 @@ def candidate_pairs(extents: np.ndarray) -> np.ndarray:
 class ScanExtentIndex:
     """Uniform-grid hash of scan extents for incremental candidate pairs (the live node).
 
-    Each scan id is stored in every grid cell its box touches; `pairs_touching` finds the
+    Each scan is stored in every grid cell its box touches; `pairs_touching` finds the
     overlapping pairs of a few moved scans without visiting the others. `cell_size` (metres)
-    should be about the size of a scan's extent.
+    should be about the size of a scan's extent. Scans are kept by row (one per id, for good)
+    so that the boxes of all neighbours are tested at once.
     """
 
     def __init__(self, cell_size: float) -> None:
@@ -99,18 +100,20 @@ class ScanExtentIndex:
         if not math.isfinite(cell_size) or cell_size <= 0.0:
             raise ValueError(f'cell_size must be a positive finite number, got {cell_size}')
         self.cell_size = cell_size
-        self._boxes: dict[int, np.ndarray] = {}
-        self._cells: dict[int, list[tuple[int, int]]] = {}
-        self._grid: defaultdict[tuple[int, int], set[int]] = defaultdict(set)
+        self._row: dict[int, int] = {}
+        self._ids = np.zeros(16, dtype=np.int64)  # id of each row
+        self._boxes = np.zeros((16, 4))  # box of each row
+        self._cells: dict[int, list[tuple[int, int]]] = {}  # of the ids in the index
+        self._grid: defaultdict[tuple[int, int], set[int]] = defaultdict(set)  # rows
 
     def __len__(self) -> int:
-        return len(self._boxes)
+        return len(self._cells)
 
     def __contains__(self, scan_id: int) -> bool:
-        return int(scan_id) in self._boxes
+        return int(scan_id) in self._cells
 
     def _check_known(self, ids: list[int]) -> None:
-        unknown = [scan_id for scan_id in ids if scan_id not in self._boxes]
+        unknown = [scan_id for scan_id in ids if scan_id not in self._cells]
         if unknown:
             raise KeyError(f'scan {unknown[0]} is not in the index')
 
@@ -120,6 +123,14 @@ class ScanExtentIndex:
         return [(cx, cy) for cx in range(low[0], high[0] + 1)
                 for cy in range(low[1], high[1] + 1)]
 
+    def _row_of(self, scan_id: int) -> int:
+        row = self._row.setdefault(scan_id, len(self._row))
+        if row == len(self._ids):
+            self._ids = np.concatenate([self._ids, np.zeros(row, dtype=np.int64)])
+            self._boxes = np.concatenate([self._boxes, np.zeros((row, 4))])
+        self._ids[row] = scan_id
+        return row
+
     def update(self, ids: np.ndarray, extents: np.ndarray) -> None:
         """Insert scans or move them to new extents (len(ids), 4)."""
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
@@ -128,12 +139,13 @@ class ScanExtentIndex:
             raise ValueError(f'{len(ids)} ids but {len(extents)} extents')
         if len(np.unique(ids)) != len(ids):
             raise ValueError('ids must not repeat')
-        self.remove(ids[np.isin(ids, list(self._boxes))])
+        self.remove(ids[np.isin(ids, list(self._cells))])
         for scan_id, box in zip(ids.tolist(), extents):
+            row = self._row_of(scan_id)
             cells = self._cells_of(box)
             for cell in cells:
-                self._grid[cell].add(scan_id)
-            self._boxes[scan_id] = box.copy()
+                self._grid[cell].add(row)
+            self._boxes[row] = box
             self._cells[scan_id] = cells
 
     def remove(self, ids: np.ndarray) -> None:
@@ -141,28 +153,27 @@ class ScanExtentIndex:
         ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
         self._check_known(ids)
         for scan_id in ids:
+            row = self._row[scan_id]
             for cell in self._cells.pop(scan_id):
                 members = self._grid[cell]
-                members.discard(scan_id)
+                members.discard(row)
                 if not members:
                     del self._grid[cell]
-            del self._boxes[scan_id]
 
     def pairs_touching(self, ids: np.ndarray) -> np.ndarray:
         """Every overlapping pair (i, j), i < j, that involves one of `ids`, sorted (P, 2)."""
         ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
         self._check_known(ids)
-        first, second = [], []
+        rows, neighbours = [], []
         for scan_id in ids:
+            row = self._row[scan_id]
             near = set().union(*(self._grid[cell] for cell in self._cells[scan_id]))
-            near.discard(scan_id)
-            if not near:
-                continue
-            others = np.fromiter(near, dtype=np.int64, count=len(near))
-            boxes = np.array([self._boxes[other] for other in others.tolist()])
-            others = others[extents_overlap(boxes, self._boxes[scan_id])]
-            first.append(np.full(len(others), scan_id, dtype=np.int64))
-            second.append(others)
-        if not first:
+            near.discard(row)
+            if near:
+                neighbours.append(np.fromiter(near, dtype=np.int64, count=len(near)))
+                rows.append(np.full(len(near), row, dtype=np.int64))
+        if not rows:
             return np.zeros((0, 2), dtype=np.int64)
-        return _as_pairs(np.concatenate(first), np.concatenate(second))
+        first, second = np.concatenate(rows), np.concatenate(neighbours)
+        overlapping = extents_overlap(self._boxes[first], self._boxes[second])
+        return _as_pairs(self._ids[first[overlapping]], self._ids[second[overlapping]])
