@@ -63,8 +63,18 @@ class ConsistencyParameters:
         if self.default_scale <= 0.0 or self.min_scale < 0.0:
             raise ValueError('default_scale must be positive and min_scale not negative')
 
+    @property
+    def local_reach(self) -> int:
+        """Temporal neighbours (the pairs of the local scale fit) are at most this many scan
+        indices apart."""
+        return _half_window(self.local_window)
+
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+def _half_window(window: int) -> int:
+    return max(window // 2, 1)
 
 
 @dataclass(frozen=True)
@@ -90,8 +100,7 @@ class ConsistencyResult:
         """(N,) s_i fitted on the map itself, from its measured pairs that join temporal
         neighbours: how its scans agree with their neighbours. The same as `scales` unless the
         test fitted those on an incremental solution."""
-        local = np.abs(self.pairs[:, 1] - self.pairs[:, 0]) <= max(
-            self.parameters.local_window // 2, 1)
+        local = np.abs(self.pairs[:, 1] - self.pairs[:, 0]) <= self.parameters.local_reach
         return _scales_from_sums(self.pairs[local], self.trimmed_sum[local],
                                  self.trimmed_count[local], self.scan_count, self.parameters)
 
@@ -223,14 +232,15 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
         inconsistent = _filter_isolated_flags(inconsistent, parameters.flag_window)
     return ConsistencyResult(
         pairs=pairs, distance_sum=measures.distance_sum, point_count=measures.point_count,
-        trimmed_sum=robust[0], trimmed_count=robust[1], tested=tested, statistic=statistic, failed=failed, scales=scales,
+        trimmed_sum=robust[0], trimmed_count=robust[1], tested=tested, statistic=statistic,
+        failed=failed, scales=scales,
         overlap_counts=overlap_counts, failed_counts=failed_counts, critical_counts=critical,
         inconsistent=inconsistent, parameters=parameters)
 
 
 def local_pairs(scans: ScanSet, window: int) -> np.ndarray:
     """Pairs of temporally adjacent scans (index distance <= window / 2) whose extents overlap."""
-    half = max(window // 2, 1)
+    half = _half_window(window)
     count = scans.extents.shape[0]
     first = np.repeat(np.arange(count), half)
     second = first + np.tile(np.arange(1, half + 1), count)
@@ -281,7 +291,7 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
     if reference_scans is None:
         # The local pairs are the candidate pairs of temporal neighbours: measured already.
         gap = measures.pairs[:, 1] - measures.pairs[:, 0]
-        local = _select(measures, gap <= max(parameters.local_window // 2, 1))
+        local = _select(measures, gap <= parameters.local_reach)
     else:
         local = pair_measures(reference, local_pairs(reference, parameters.local_window),
                               keep_largest=keep)

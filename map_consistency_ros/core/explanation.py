@@ -555,8 +555,8 @@ def _places(points: np.ndarray, cell: float) -> np.ndarray:
     # half of the eight neighbours suffices: a link joins both ways
     neighbours = unique[:, None] + np.array([width - 1, width, width + 1, 1])[None]
     found = np.minimum(np.searchsorted(unique, neighbours), unique.size - 1)
-    cell_rows, _ = np.nonzero(unique[found] == neighbours)
-    links = np.stack([cell_rows, found[unique[found] == neighbours]], axis=1)
+    present = unique[found] == neighbours
+    links = np.stack([np.nonzero(present)[0], found[present]], axis=1)
     return _components(unique.size, links)[cell_of_point.reshape(-1)]
 
 

@@ -718,7 +718,7 @@ class ConsistencyMonitor:
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
         """Measures at the incremental poses of every pair within the local window."""
-        half = max(self.parameters.local_window // 2, 1)
+        half = self.parameters.local_reach
         count = order.size
         appended = new_ranks.size == 0 or new_ranks.min() >= count - new_ranks.size
         # Keyframes appended in stamp order only add pairs; an insertion reshapes windows.

@@ -96,8 +96,8 @@ def test_the_grid_lookup_finds_the_nearest_point_within_the_gate(intel, gate):
     from scipy.spatial import cKDTree
 
     from map_consistency_ros.core.registration import _grid, _nearest
-    surfaces = surface_points(_scans(intel, np.arange(100, 111)).endpoints,
-                              _scans(intel, np.arange(100, 111)).valid)
+    scans = _scans(intel, np.arange(100, 111))
+    surfaces = surface_points(scans.endpoints, scans.valid)
     points = surfaces.points
     queries = points[::7] + np.random.default_rng(5).normal(scale=0.2, size=(len(points[::7]), 2))
     distance, oracle = cKDTree(points).query(queries, distance_upper_bound=gate)
