@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.records import Record
+from map_consistency_ros.core.records import KeyframeEstimate, Record
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE, PATH_TYPE,
                                              POSE_COVARIANCE_TYPE, POSE_TYPES, SCAN_TYPE,
                                              constraints_message, graph_markers_message,
-                                             path_message, scan_message, single_pose_message,
-                                             to_record)
+                                             path_from_cdr, path_message, scan_message,
+                                             single_pose_message, to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 STORAGES = ('mcap', 'sqlite3')
@@ -213,10 +213,12 @@ class BagReader:
         """
         topics = self.input_topics
         counts: dict[str, int] = {}
-        for connection, timestamp, message in self._messages(self._selected(topics)):
+        for connection, timestamp, message in self._messages(self._selected(topics),
+                                                             read_paths=True):
             index = counts[connection.topic] = counts.get(connection.topic, 0) + 1
             try:
-                record = to_record(connection.msgtype, message, self.max_range)
+                record = (message if isinstance(message, KeyframeEstimate)
+                          else to_record(connection.msgtype, message, self.max_range))
             except ValueError as error:
                 record = BadMessage(topic=connection.topic, index=index, reason=str(error))
             yield timestamp * 1e-9, record
@@ -239,11 +241,17 @@ class BagReader:
         except _bag_errors() as error:
             raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
 
-    def _messages(self, connections: list) -> Iterator[tuple]:
+    def _messages(self, connections: list, read_paths: bool = False) -> Iterator[tuple]:
+        """(connection, log time, message); `read_paths`: the Paths of ROS 2 bags come as
+        their records, read from the CDR bytes as the node reads them (messages.path_from_cdr)."""
         errors = _bag_errors()
+        cdr = read_paths and not self.is_ros1
         try:
             for connection, timestamp, data in self._reader.messages(connections):
-                yield connection, timestamp, self._reader.deserialize(data, connection.msgtype)
+                record = (path_from_cdr(data) if cdr and connection.msgtype == PATH_TYPE
+                          else None)
+                yield connection, timestamp, (record if record is not None else
+                                              self._reader.deserialize(data, connection.msgtype))
         except errors as error:
             raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
 

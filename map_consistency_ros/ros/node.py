@@ -34,6 +34,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
@@ -174,8 +175,10 @@ class MapConsistencyNode(Node):
                                          'graph_visualization', self._on_graph, GRAPH,
                                          callback_group=poses)
         else:
+            # raw: the bytes are read with numpy (messages.path_from_cdr), where deserializing
+            # a Path of the whole estimate would hold the interpreter for ~50 us per pose
             self.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
-                                     callback_group=poses)
+                                     callback_group=poses, raw=True)
         self.create_subscription(message_class(messages.CONSTRAINTS_TYPE), 'constraints',
                                  self._on_constraints, RELIABLE, callback_group=poses)
         self.service_host = self._host_services()
@@ -242,9 +245,12 @@ class MapConsistencyNode(Node):
             self._warned[topic] = now
             self.get_logger().warning(f'ignored bad input on {topic}: {message}')
 
-    def _convert(self, topic: str, msgtype: str, msg):
+    def _received(self) -> None:
         with self._lock:
             self._last_input = self._now()
+
+    def _convert(self, topic: str, msgtype: str, msg):
+        self._received()
         try:
             return messages.to_record(msgtype, msg, self._feed.settings.max_range)
         except ValueError as error:
@@ -266,8 +272,13 @@ class MapConsistencyNode(Node):
         with self._lock:
             self._dds_lost += info.total_count_change
 
-    def _on_trajectory(self, msg: Path) -> None:
-        record = self._convert('trajectory', messages.PATH_TYPE, msg)
+    def _on_trajectory(self, data: bytes) -> None:
+        record = messages.path_from_cdr(data)
+        if record is None:  # a layout the fast reader leaves to the deserializer
+            record = self._convert('trajectory', messages.PATH_TYPE,
+                                   deserialize_message(data, Path))
+        else:
+            self._received()
         if record is not None:
             with self._lock:
                 # the full estimate: a newer one replaces it

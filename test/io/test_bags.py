@@ -262,6 +262,25 @@ def test_raw_messages_are_cdr(tmp_path, recorded, shared_data):
             bag.raw_messages(['/scan'])
 
 
+def test_paths_read_from_their_bytes_as_rosbags_deserializes_them(tmp_path, recorded):
+    from rosbags.typesys import Stores, get_typestore
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    path = write_bag(tmp_path / 'bag', recorded)
+    with BagReader([path]) as bag:
+        raw = [data for *_, data in bag.raw_messages(['/trajectory'])]
+    assert len(raw) == 10
+    for data in raw:
+        message = typestore.deserialize_cdr(data, messages.PATH_TYPE)
+        for frame in ('', 'a', 'map', 'base_link'):  # every alignment of the entries
+            for entry in message.poses:
+                entry.header.frame_id = frame
+            data = typestore.serialize_cdr(message, messages.PATH_TYPE)
+            fast = messages.path_from_cdr(data)
+            slow = messages.to_record(messages.PATH_TYPE, message)
+            np.testing.assert_array_equal(fast.stamps, slow.stamps)
+            np.testing.assert_array_equal(fast.poses, slow.poses)
+
+
 @pytest.mark.parametrize('msgtype', [messages.POSE_STAMPED_TYPE, messages.POSE_COVARIANCE_TYPE,
                                      messages.ODOMETRY_TYPE])
 def test_single_pose_sources(tmp_path, msgtype):

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 from nav_msgs.msg import Path
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -93,6 +94,38 @@ def test_path_round_trip_on_real_poses(intel):
     np.testing.assert_allclose(heading_error, 0.0, atol=1e-12)
     empty = messages.path_to_numpy(Path())
     assert empty[0].shape == (0,) and empty[1].shape == (0, 3)
+
+
+@pytest.mark.parametrize('count', [0, 1, 2, 50])
+@pytest.mark.parametrize('frame, entry_frame', [('map', 'map'), ('', 'a'), ('odom', ''),
+                                                ('abcdefgh', 'base_link'), ('m', 'abcd')])
+def test_path_read_from_its_bytes_as_rclpy_deserializes_it(intel, count, frame, entry_frame):
+    # every alignment of the frame ids: the readers must agree bit for bit
+    log, _ = intel
+    msg = messages.path_message(message_class, log.timestamps[:count], log.laser_poses[:count],
+                                frame, stamp=log.timestamps[0])
+    for entry in msg.poses:
+        entry.header.frame_id = entry_frame
+    if count > 1:
+        msg.poses[1].pose.orientation.z = float('inf')  # no heading: NaN yaw in both
+        msg.poses[-1].pose.position.x = float('nan')
+    data = serialize_message(msg)
+    fast = messages.path_from_cdr(data)
+    slow = messages.to_record(messages.PATH_TYPE, deserialize_message(data, Path))
+    assert fast.frame_id == slow.frame_id == frame
+    np.testing.assert_array_equal(fast.stamps, slow.stamps)
+    np.testing.assert_array_equal(fast.poses, slow.poses)  # NaN where NaN
+
+
+def test_path_layouts_the_byte_reader_leaves_to_the_deserializer(intel):
+    log, _ = intel
+    msg = messages.path_message(message_class, log.timestamps[:5], log.laser_poses[:5], 'map')
+    data = serialize_message(msg)
+    assert messages.path_from_cdr(data) is not None
+    assert messages.path_from_cdr(data[:-8]) is None  # shorter than its count says
+    assert messages.path_from_cdr(b'\x01\x00' + data[2:]) is None  # big endian
+    msg.poses[3].header.frame_id = 'odom'  # entries no longer evenly spaced
+    assert messages.path_from_cdr(serialize_message(msg)) is None
 
 
 def test_yaw_of_an_unnormalised_tilted_quaternion():

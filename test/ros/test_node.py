@@ -307,6 +307,19 @@ def test_absurd_poses_are_skipped_and_counted(probe, intel):
     assert probe.status_value('inconsistent scans') == '0'  # the two kept their last pose
 
 
+def test_a_path_the_byte_reader_cannot_read_is_deserialized(probe, intel):
+    log, _ = intel
+    problems = int(probe.status_value('input problems'))
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    uneven = messages.path_message(message_class, stamps, poses, 'map')
+    uneven.poses[2].header.frame_id = 'base_link'  # entries of different sizes
+    uneven.poses[4].pose.position.x = 1e300  # proof that it was read: one absurd pose
+    probe.trajectory.publish(uneven)
+    _wait(lambda: int(probe.status_value('input problems')) >= problems + 1,
+          what='the absurd pose counted')
+    assert probe.status_value('scans') == str(SCANS)
+
+
 def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     log, model = intel
     stamps = log.timestamps[:SCANS]
