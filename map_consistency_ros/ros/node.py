@@ -73,6 +73,9 @@ GRAPH = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                    history=HistoryPolicy.KEEP_LAST)
 # Parameters every rclpy node has, and per-topic QoS overrides: not ours, not unknown.
 _FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+# The second stage's niceness (0 the default, 19 the lowest priority): an explanation may take
+# as long as it likes, an update's latency is what the node promises.
+EXPLAINER_NICENESS = 19
 _SHUTDOWN_ANSWER_SECONDS = 0.2  # spinning after a stop request, for pending answers to go out
 _SHUTTING_DOWN = 'the node is shutting down'
 
@@ -433,6 +436,7 @@ class MapConsistencyNode(Node):
     def _explain_loop(self) -> None:
         """The explainer thread: the second stage on the newest snapshot, at most every
         `explanation_period`, so a long explanation never delays a first-stage update."""
+        _yield_to_updates()
         while not self._stop.is_set():
             wait = self._explained_at + self._settings.explanation_period - time.monotonic()
             if wait > 0.0:
@@ -702,6 +706,16 @@ def _message_executor(node: MapConsistencyNode) -> Executor:
         else:
             return EventsExecutor()
     return MultiThreadedExecutor(num_threads=4)
+
+
+def _yield_to_updates() -> None:
+    """Lower the calling thread's CPU priority (Linux: nice is per thread, and the OpenMP
+    threads numba starts from this thread inherit it), so that on a loaded machine the
+    second stage takes what the first-stage updates leave instead of slowing them down."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EXPLAINER_NICENESS)
+    except (AttributeError, OSError):  # not Linux, or not allowed: same priority, still correct
+        pass
 
 
 def _spin_until(executor: Executor, stop: threading.Event) -> None:

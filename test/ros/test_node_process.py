@@ -117,12 +117,24 @@ class Client:
         self.thread.join(timeout=5)
 
 
+def _thread_niceness(pid: int) -> list[int]:
+    """The nice value of every thread of a process (Linux: field 19 of /proc/PID/task/T/stat)."""
+    values = []
+    for stat in FilePath(f'/proc/{pid}/task').glob('*/stat'):
+        fields = stat.read_text().rsplit(')', 1)[1].split()  # after the thread's name
+        values.append(int(fields[16]))
+    return values
+
+
 def test_sigint_when_idle_ends_cleanly(ros_env):
     process = _node(ros_env)
     client = Client()
     try:
         check = client.node.create_client(Trigger, '/map_consistency/check')
         assert check.wait_for_service(timeout_sec=TIMEOUT)
+        # the second stage yields the cores to the updates; everything else keeps its priority
+        niceness = _thread_niceness(process.pid)
+        assert niceness.count(19) == 1 and 0 in niceness, niceness
         seconds, output = _stop(process)
     finally:
         client.close()
