@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from numba import njit
 
 from map_consistency_ros.core import statistics
 from map_consistency_ros.core.measure import PairMeasures, pair_measures, pairs_point_distances
@@ -154,13 +155,16 @@ def _robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndar
 
 
 def local_scales(measures: PairMeasures, scan_count: int,
-                 parameters: ConsistencyParameters) -> np.ndarray:
+                 parameters: ConsistencyParameters,
+                 robust: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """s_i of every scan (eq. 10): the largest scale bound over its measured local pairs.
 
     `measures` are the pairs of temporally adjacent scans measured on the incremental solution.
     Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
+    `robust`: see `robust_statistic`.
     """
-    distance_sum, count = _robust_sums(measures, parameters.trim_largest)
+    distance_sum, count = (_robust_sums(measures, parameters.trim_largest) if robust is None
+                           else robust)
     return _scales_from_sums(measures.pairs, distance_sum, count, scan_count, parameters)
 
 
@@ -168,16 +172,28 @@ def _scales_from_sums(pairs: np.ndarray, distance_sum: np.ndarray, count: np.nda
                       scan_count: int, parameters: ConsistencyParameters) -> np.ndarray:
     """local_scales from the local pairs' trimmed (M_ij, n_ij)."""
     usable = count >= parameters.min_points
-    bounds = statistics.scale_bound(distance_sum[usable], count[usable], parameters.local_alpha)
-    first, second = pairs[usable, 0], pairs[usable, 1]
+    bounds = np.zeros(len(pairs))
+    bounds[usable] = statistics.scale_bound(distance_sum[usable], count[usable],
+                                            parameters.local_alpha)
+    return _largest_bounds(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bounds, usable,
+                           scan_count, parameters.default_scale, parameters.min_scale)
+
+
+@njit(cache=True)
+def _largest_bounds(pairs: np.ndarray, bounds: np.ndarray, usable: np.ndarray, scan_count: int,
+                    default: float, floor: float) -> np.ndarray:
+    """Per scan, the largest bound of its usable pairs, `default` without any, at least
+    `floor`."""
     scales = np.zeros(scan_count)
-    np.maximum.at(scales, first, bounds)
-    np.maximum.at(scales, second, bounds)
-    has_estimate = np.zeros(scan_count, dtype=bool)
-    has_estimate[first] = True
-    has_estimate[second] = True
-    scales[~has_estimate] = parameters.default_scale
-    return np.maximum(scales, parameters.min_scale)
+    has_estimate = np.zeros(scan_count, dtype=np.bool_)
+    for index in range(pairs.shape[0]):
+        if usable[index]:
+            for scan in (pairs[index, 0], pairs[index, 1]):
+                scales[scan] = max(scales[scan], bounds[index])
+                has_estimate[scan] = True
+    for scan in range(scan_count):
+        scales[scan] = max(scales[scan] if has_estimate[scan] else default, floor)
+    return scales
 
 
 def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
@@ -217,14 +233,11 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
     pairs = measures.pairs
-    pair_scale = np.maximum(scales[pairs[:, 0]], scales[pairs[:, 1]]) if len(pairs) else scales[:0]
     robust = _robust_sums(measures, parameters.trim_largest) if robust is None else robust
-    tested, statistic = robust_statistic(measures, pair_scale, parameters, robust)
-    failed = tested & (statistic > statistics.normal_quantile(parameters.alpha))
-    overlap_counts = (np.bincount(pairs[tested, 0], minlength=scan_count)
-                      + np.bincount(pairs[tested, 1], minlength=scan_count))
-    failed_counts = (np.bincount(pairs[failed, 0], minlength=scan_count)
-                     + np.bincount(pairs[failed, 1], minlength=scan_count))
+    tested, statistic, failed, overlap_counts, failed_counts = _pairwise_tests(
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(robust[0], dtype=np.float64), np.asarray(robust[1], dtype=np.int64),
+        scales, parameters.min_points, statistics.normal_quantile(parameters.alpha))
     critical = statistics.binomial_critical_count(overlap_counts, parameters.failure_probability,
                                                   parameters.binomial_alpha)
     inconsistent = failed_counts > critical
@@ -236,6 +249,34 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
         failed=failed, scales=scales,
         overlap_counts=overlap_counts, failed_counts=failed_counts, critical_counts=critical,
         inconsistent=inconsistent, parameters=parameters)
+
+
+@njit(cache=True)
+def _pairwise_tests(pairs: np.ndarray, trimmed_sum: np.ndarray, trimmed_count: np.ndarray,
+                    scales: np.ndarray, min_points: int, threshold: float):
+    """Per pair: tested (enough points), Psi_ij with s = max(s_i, s_j) (NaN untested), failed
+    (Psi_ij above the threshold); per scan: its tested and failed pairs (r_i and the count
+    the cascaded test compares with nu-hat). One pass: a live map has a million pairs."""
+    count = pairs.shape[0]
+    tested = np.zeros(count, dtype=np.bool_)
+    statistic = np.full(count, np.nan)
+    failed = np.zeros(count, dtype=np.bool_)
+    overlaps = np.zeros(scales.size, dtype=np.int64)
+    failures = np.zeros(scales.size, dtype=np.int64)
+    for index in range(count):
+        if trimmed_count[index] < min_points:
+            continue
+        first, second = pairs[index, 0], pairs[index, 1]
+        tested[index] = True
+        overlaps[first] += 1
+        overlaps[second] += 1
+        scale = max(scales[first], scales[second])
+        statistic[index] = statistics.psi(trimmed_sum[index], float(trimmed_count[index]), scale)
+        if statistic[index] > threshold:
+            failed[index] = True
+            failures[first] += 1
+            failures[second] += 1
+    return tested, statistic, failed, overlaps, failures
 
 
 def local_pairs(scans: ScanSet, window: int) -> np.ndarray:

@@ -182,7 +182,12 @@ def _key_slots(keys: np.ndarray) -> np.ndarray:
 
 class _PairCache:
     """Pair measures of slot pairs (low, high) in growable arrays, insertion order, with each
-    pair's trimmed (M_ij, n_ij) of the test, computed once when the pair is measured."""
+    pair's trimmed (M_ij, n_ij) of the test, computed once when the pair is measured.
+
+    An entry is never written once stored: inserts go past the end, and dropping entries or
+    growing builds new arrays. So views of the first `size` entries stay valid for as long as
+    anyone holds them, and a snapshot shares them instead of copying a million pairs.
+    """
 
     def __init__(self, keep_largest: int, trim: int) -> None:
         self.size = 0
@@ -208,8 +213,9 @@ class _PairCache:
 
     def _keep(self, keep: np.ndarray) -> None:
         kept = int(np.count_nonzero(keep))
-        for array in self._arrays():
-            array[:kept] = array[:self.size][keep]
+        (self._pairs, self._distance_sum, self._point_count, self._largest,
+         self._trimmed_sum, self._trimmed_count) = (
+            _with_capacity(array[:self.size][keep], array.shape[0]) for array in self._arrays())
         self.size = kept
 
     def retain(self, keys: np.ndarray) -> None:
@@ -230,9 +236,7 @@ class _PairCache:
             capacity = max(2 * self._pairs.shape[0], end)
             (self._pairs, self._distance_sum, self._point_count, self._largest,
              self._trimmed_sum, self._trimmed_count) = (
-                np.concatenate([array, np.zeros((capacity - array.shape[0],) + array.shape[1:],
-                                                dtype=array.dtype)])
-                for array in self._arrays())
+                _with_capacity(array[:self.size], capacity) for array in self._arrays())
         self._pairs[self.size:end] = _key_slots(keys)
         self._distance_sum[self.size:end] = measures.distance_sum
         self._point_count[self.size:end] = measures.point_count
@@ -243,20 +247,18 @@ class _PairCache:
 
     def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
         """The cached pairs as PairMeasures over scan indices `rank_of_slot[slot]` (i < j);
-        None means ranks are slots.
-
-        Copies of what a ConsistencyResult keeps (the cache changes in place later); the
-        largest distances, only read by the statistics, are a view.
-        """
-        pairs = (self.pairs.copy() if rank_of_slot is None
+        None means ranks are slots. Read-only views (see the class)."""
+        pairs = (self.pairs if rank_of_slot is None
                  else np.sort(rank_of_slot[self.pairs], axis=1))
-        return PairMeasures(pairs=pairs, distance_sum=self._distance_sum[:self.size].copy(),
-                            point_count=self._point_count[:self.size].copy(),
-                            largest=self._largest[:self.size])
+        return PairMeasures(pairs=_read_only(pairs),
+                            distance_sum=_read_only(self._distance_sum[:self.size]),
+                            point_count=_read_only(self._point_count[:self.size]),
+                            largest=_read_only(self._largest[:self.size]))
 
     def robust(self) -> tuple[np.ndarray, np.ndarray]:
         """The trimmed (M_ij, n_ij) of the cached pairs, in the order of `measures`."""
-        return self._trimmed_sum[:self.size].copy(), self._trimmed_count[:self.size].copy()
+        return (_read_only(self._trimmed_sum[:self.size]),
+                _read_only(self._trimmed_count[:self.size]))
 
 
 class _Keyframes:
@@ -543,8 +545,7 @@ class ConsistencyMonitor:
         if np.array_equal(order, np.arange(keyframes.count)):
             # A slot's ranges never change once registered: a read-only view is a snapshot,
             # and copying every scan on every update would grow with the map.
-            ranges = keyframes.ranges[:keyframes.count].view()
-            ranges.setflags(write=False)
+            ranges = _read_only(keyframes.ranges[:keyframes.count])
         else:
             ranges = keyframes.ranges[order]
         return MonitorSnapshot(
@@ -710,7 +711,8 @@ class ConsistencyMonitor:
             # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
             in_order = np.array_equal(order, np.arange(keyframes.count))
             ranks = None if in_order else _rank_of_slot(order)
-            scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters)
+            scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters,
+                                  robust=self._local.robust())
             self._result = evaluate_pairs(self._current.measures(ranks), scales,
                                           keyframes.count, self.parameters,
                                           robust=self._current.robust())
@@ -733,6 +735,19 @@ class ConsistencyMonitor:
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
+
+
+def _with_capacity(rows: np.ndarray, capacity: int) -> np.ndarray:
+    """A new array of `capacity` rows that starts with `rows` (the rest unset: never read)."""
+    grown = np.empty((capacity,) + rows.shape[1:], dtype=rows.dtype)
+    grown[:len(rows)] = rows
+    return grown
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.setflags(write=False)
+    return view
 
 
 def _rank_of_slot(order: np.ndarray) -> np.ndarray:

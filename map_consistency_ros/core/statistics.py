@@ -17,14 +17,10 @@ from statistics import NormalDist
 import numpy as np
 from numba import njit
 
+# |X| with X ~ N(0, s^2) has mean HALFNORMAL_MEAN_FACTOR s and standard deviation
+# HALFNORMAL_STD_FACTOR s (eq. 3).
 HALFNORMAL_MEAN_FACTOR = math.sqrt(2.0 / math.pi)
 HALFNORMAL_STD_FACTOR = math.sqrt(1.0 - 2.0 / math.pi)
-
-
-def halfnormal_moments(scale: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and variance of |X| with X ~ N(0, s^2) (eq. 3)."""
-    scale = np.asarray(scale, dtype=np.float64)
-    return HALFNORMAL_MEAN_FACTOR * scale, (HALFNORMAL_STD_FACTOR * scale) ** 2
 
 
 def normal_quantile(upper_tail: float) -> float:
@@ -59,18 +55,32 @@ def chi_square_3_quantile(upper_tail: float) -> float:
     return high
 
 
-def standardized_inconsistency(distance_sum: np.ndarray, point_count: np.ndarray,
-                               scale: np.ndarray) -> np.ndarray:
-    """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5).
+@njit(cache=True, error_model='numpy')
+def psi(distance_sum: float, point_count: float, scale: float) -> float:
+    """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5);
+    NaN for a pair without points: it carries no evidence either way."""
+    if not point_count > 0.0:
+        return np.nan
+    mean, deviation = HALFNORMAL_MEAN_FACTOR * scale, HALFNORMAL_STD_FACTOR * scale
+    return (distance_sum - mean * point_count) / math.sqrt(deviation * deviation * point_count)
 
-    Pairs without points get NaN: they carry no evidence either way.
-    """
-    distance_sum = np.asarray(distance_sum, dtype=np.float64)
-    count = np.asarray(point_count, dtype=np.float64)
-    mean, variance = halfnormal_moments(scale)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        psi = (distance_sum - mean * count) / np.sqrt(variance * count)
-    return np.where(count > 0, psi, np.nan)
+
+@njit(cache=True)
+def _psi_of(distance_sum: np.ndarray, point_count: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    out = np.empty(distance_sum.size)
+    for index in range(distance_sum.size):
+        out[index] = psi(distance_sum[index], point_count[index], scale[index])
+    return out
+
+
+def standardized_inconsistency(distance_sum: np.ndarray, point_count: np.ndarray,
+                               scale: np.ndarray | float) -> np.ndarray:
+    """psi of every pair (arrays broadcast together)."""
+    arrays = np.broadcast_arrays(np.asarray(distance_sum, dtype=np.float64),
+                                 np.asarray(point_count, dtype=np.float64),
+                                 np.asarray(scale, dtype=np.float64))
+    shape = arrays[0].shape
+    return _psi_of(*(np.ascontiguousarray(array).ravel() for array in arrays)).reshape(shape)
 
 
 def scale_bound(distance_sum: np.ndarray, point_count: np.ndarray, alpha: float) -> np.ndarray:

@@ -201,3 +201,35 @@ def test_inconsistent_endpoints_keep_only_points_deeper_than_asked(intel):
     assert 0 < len(deep) < len(every)
     nothing = inconsistent_endpoints(displaced, result, max_pairs=5, min_depth=1e6)
     assert nothing.shape == (0, 2)
+
+
+def test_the_one_pass_tests_agree_with_the_formulas_on_the_intel_map(intel):
+    # eqs. 5-6 and 10 written out with numpy and scipy, pair by pair and scan by scan
+    from scipy import stats
+    parameters = ConsistencyParameters()
+    result = check_consistency(intel, parameters)
+    count, distance_sum = result.trimmed_count, result.trimmed_sum
+    tested = count >= parameters.min_points
+    scale = np.maximum(result.scales[result.pairs[:, 0]], result.scales[result.pairs[:, 1]])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        psi = ((distance_sum - np.sqrt(2 / np.pi) * scale * count)
+               / (np.sqrt(1 - 2 / np.pi) * scale * np.sqrt(count)))
+    np.testing.assert_array_equal(result.tested, tested)
+    np.testing.assert_allclose(result.statistic[tested], psi[tested], rtol=1e-12)
+    assert np.isnan(result.statistic[~tested]).all()
+    failed = tested & (psi > stats.norm.isf(parameters.alpha))
+    np.testing.assert_array_equal(result.failed, failed)
+    scans = len(intel.ranges)
+    for counts, chosen in ((result.overlap_counts, tested), (result.failed_counts, failed)):
+        np.testing.assert_array_equal(counts, np.bincount(result.pairs[chosen].ravel(),
+                                                          minlength=scans))
+    local = np.abs(result.pairs[:, 1] - result.pairs[:, 0]) <= parameters.local_reach
+    usable = local & tested
+    with np.errstate(divide='ignore', invalid='ignore'):
+        bound = (distance_sum / count) / (np.sqrt(2 / np.pi) + stats.norm.isf(
+            parameters.local_alpha) * np.sqrt(1 - 2 / np.pi) / np.sqrt(count))
+    expected = np.full(scans, parameters.default_scale)
+    expected[np.unique(result.pairs[usable])] = 0.0
+    np.maximum.at(expected, result.pairs[usable, 0], bound[usable])
+    np.maximum.at(expected, result.pairs[usable, 1], bound[usable])
+    np.testing.assert_allclose(result.own_scales(), expected, rtol=1e-12)

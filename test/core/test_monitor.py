@@ -99,15 +99,17 @@ def test_loop_closure_measures_only_moved_pairs(intel):
     first = monitor.update_trajectory(stamps, poses)
     assert first.new_keyframes == len(stamps)
     earlier = monitor.snapshot()
-    kept = (earlier.result.pairs.copy(), earlier.result.distance_sum.copy(),
-            earlier.poses.copy())
+    shared = ('pairs', 'distance_sum', 'point_count', 'trimmed_sum', 'trimmed_count')
+    kept = [getattr(earlier.result, name).copy() for name in shared] + [earlier.poses.copy()]
+    with pytest.raises(ValueError, match='read-only'):  # shared with the monitor, not copied
+        earlier.result.distance_sum[0] = 1.0
     moved = _dragged(poses, half)
     summary = monitor.update_trajectory(stamps, moved)
     assert summary.moved_keyframes == len(stamps) - half and summary.new_keyframes == 0
     assert 0 < summary.measured_pairs < first.measured_pairs
-    # a snapshot is a copy: later updates leave it alone
-    for old, new in zip(kept, (earlier.result.pairs, earlier.result.distance_sum,
-                                earlier.poses)):
+    # later updates leave a snapshot alone
+    for old, new in zip(kept, [getattr(earlier.result, name) for name in shared]
+                        + [earlier.poses]):
         np.testing.assert_array_equal(old, new)
     result = monitor.snapshot().result
     oracle = _oracle(ranges, moved, model, reference_poses=poses)
