@@ -224,10 +224,12 @@ class _PairCache:
 
     def drop_slots(self, slots: np.ndarray, slot_count: int) -> None:
         """Drop every pair that involves one of `slots` (all below `slot_count`)."""
+        if slots.size == 0:
+            return
         hit = np.zeros(slot_count, dtype=bool)
         hit[slots] = True
         involved = hit[self.pairs[:, 0]] | hit[self.pairs[:, 1]]
-        if involved.any():  # new keyframes have no pairs yet: skip the copy
+        if involved.any():
             self._keep(~involved)
 
     def insert(self, keys: np.ndarray, measures: PairMeasures) -> None:
@@ -673,7 +675,8 @@ class ConsistencyMonitor:
         keyframes = self._keyframes
         placed = self._scans(changed)
         self._index.update(changed, placed.extents)
-        self._current.drop_slots(changed, keyframes.count)
+        # new keyframes have no pairs yet: only moved ones lose theirs (a test over every pair)
+        self._current.drop_slots(np.setdiff1d(changed, new), keyframes.count)
         touching = self._within_budget(self._index.pairs_touching(changed), new)
         keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
         measured = 0
