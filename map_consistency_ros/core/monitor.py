@@ -141,12 +141,14 @@ def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.nda
     return se2.compose(keyframe_poses, np.broadcast_to(laser_offset, keyframe_poses.shape))
 
 
-def _match(queries: np.ndarray, stamps: np.ndarray, tolerance: float) -> np.ndarray:
-    """Index of the stamp nearest to each query within `tolerance`, -1 where none."""
+def _match(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
+           order: np.ndarray | None = None) -> np.ndarray:
+    """Index of the stamp nearest to each query within `tolerance`, -1 where none; `order`:
+    the stamps' stable argsort when the caller keeps it."""
     found = np.full(queries.size, -1, dtype=np.int64)
     if stamps.size == 0 or queries.size == 0:
         return found
-    order = np.argsort(stamps, kind='stable')
+    order = np.argsort(stamps, kind='stable') if order is None else order
     ordered = stamps[order]
     right = np.clip(np.searchsorted(ordered, queries), 0, ordered.size - 1)
     left = np.clip(right - 1, 0, ordered.size - 1)
@@ -274,6 +276,8 @@ class _Keyframes:
         self.ranges = np.zeros((16, beams))
         # pairs with earlier keyframes: every stride-th slot (1: all), fixed on arrival
         self.stride = np.ones(16, dtype=np.int64)
+        # slots in stamp order, kept: every scan and every trajectory is matched against them
+        self._order = np.zeros(0, dtype=np.int64)
 
     def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
                ranges: np.ndarray) -> int:
@@ -288,11 +292,19 @@ class _Keyframes:
         self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
         self.ranges[slot] = ranges
         self.count += 1
+        if self._order.size == slot and (slot == 0 or stamp >= self.stamps[self._order[-1]]):
+            self._order = np.append(self._order, slot)  # the usual case: in stamp order
+        else:
+            self._order = np.argsort(self.stamps[:self.count], kind='stable')
         return slot
 
     def order(self) -> np.ndarray:
-        """Slots in stamp order."""
-        return np.argsort(self.stamps[:self.count], kind='stable')
+        """Slots in stamp order (read-only)."""
+        return _read_only(self._order)
+
+    def match(self, queries: np.ndarray, tolerance: float) -> np.ndarray:
+        """The slot whose stamp is nearest to each query within `tolerance`, -1 where none."""
+        return _match(queries, self.stamps[:self.count], tolerance, self._order)
 
 
 class _Placement:
@@ -571,8 +583,7 @@ class ConsistencyMonitor:
     def _registered_slot(self, stamp: float) -> int | None:
         if self.keyframe_count == 0:
             return None
-        slot = int(_match(np.array([stamp]), self._keyframes.stamps[:self._keyframes.count],
-                          self.settings.stamp_tolerance)[0])
+        slot = int(self._keyframes.match(np.array([stamp]), self.settings.stamp_tolerance)[0])
         return slot if slot >= 0 else None
 
     def _buffer_matches(self, stamps: np.ndarray) -> np.ndarray:
@@ -586,8 +597,7 @@ class ConsistencyMonitor:
         """For each pose of the last trajectory, its keyframe slot or -1."""
         if self.keyframe_count == 0:
             return np.full(self._path_stamps.size, -1, dtype=np.int64)
-        return _match(self._path_stamps, self._keyframes.stamps[:self._keyframes.count],
-                      self.settings.stamp_tolerance)
+        return self._keyframes.match(self._path_stamps, self.settings.stamp_tolerance)
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
         start = time.perf_counter()
