@@ -383,6 +383,10 @@ class ConsistencyMonitor:
         self._placed, self._placed_incremental = _Placement(), _Placement()
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
+        # _path_slots of (trajectory number, keyframe count): a new trajectory or a new
+        # keyframe changes them
+        self._path_version = 0
+        self._path_slots_of: tuple[tuple[int, int], np.ndarray] = ((-1, -1), np.zeros(0))
         self._result: ConsistencyResult | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
@@ -446,7 +450,7 @@ class ConsistencyMonitor:
     def pending(self) -> bool:
         """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
         unmatched = self._path_stamps[self._path_slots() < 0]
-        return bool(np.isfinite(self._buffer_matches(unmatched)).any())
+        return bool(unmatched.size and np.isfinite(self._buffer_matches(unmatched)).any())
 
     def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
         """Take the back-end's full current estimate: register, move, measure, test.
@@ -480,6 +484,7 @@ class ConsistencyMonitor:
             warnings.append(f'{int(duplicate.sum())} trajectory poses with a duplicated stamp '
                             'skipped (the first is kept)')
         self._path_stamps, self._path_poses = stamps[~duplicate], poses[~duplicate]
+        self._path_version += 1
         return self._apply_path(tuple(warnings))
 
     def refresh(self) -> UpdateSummary:
@@ -594,10 +599,14 @@ class ConsistencyMonitor:
                         np.nan)
 
     def _path_slots(self) -> np.ndarray:
-        """For each pose of the last trajectory, its keyframe slot or -1."""
-        if self.keyframe_count == 0:
-            return np.full(self._path_stamps.size, -1, dtype=np.int64)
-        return self._keyframes.match(self._path_stamps, self.settings.stamp_tolerance)
+        """For each pose of the last trajectory, its keyframe slot or -1 (a copy: callers
+        fill in slots they register)."""
+        key = (self._path_version, self.keyframe_count)
+        if self._path_slots_of[0] != key:  # the node asks on every scan, for `pending`
+            slots = (np.full(self._path_stamps.size, -1, dtype=np.int64) if key[1] == 0 else
+                     self._keyframes.match(self._path_stamps, self.settings.stamp_tolerance))
+            self._path_slots_of = (key, slots)
+        return self._path_slots_of[1].copy()
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
         start = time.perf_counter()
