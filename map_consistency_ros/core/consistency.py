@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -117,15 +118,17 @@ class ConsistencyResult:
     def inconsistent_scans(self) -> np.ndarray:
         return np.flatnonzero(self.inconsistent)
 
-    @property
+    # cached, the three counts: the node reports them on every update, each a pass over
+    # every pair
+    @cached_property
     def overlapping_pair_count(self) -> int:
         return int(np.count_nonzero(self.point_count))
 
-    @property
+    @cached_property
     def tested_pair_count(self) -> int:
         return int(np.count_nonzero(self.tested))
 
-    @property
+    @cached_property
     def failed_pair_count(self) -> int:
         return int(np.count_nonzero(self.failed))
 

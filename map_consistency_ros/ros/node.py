@@ -114,6 +114,7 @@ class MapConsistencyNode(Node):
         # the last verdict of both stages, the snapshot it judged and its scans (the markers
         # draw from them), and when (time.monotonic)
         self._verdict: tuple[Assessment, MonitorSnapshot, ScanSet] | None = None
+        self._verdict_content: tuple[object, dict] = (None, {})  # (verdict, its report part)
         self._explained_at = -math.inf
         self._explaining = threading.Lock()  # one explanation at a time (the cache is shared)
         # the worker and the explainer both publish (reentrant: a reset takes a snapshot)
@@ -510,19 +511,28 @@ class MapConsistencyNode(Node):
         """The machine-readable report of ~/report (the one place it is built): the verdict's
         report of the CLI, scans named by their stamps, and the node's own figures."""
         snapshot = self._snapshot
-        assessment, judged, _ = self._verdict
-        content = assessment_report(assessment, judged.stamps)
-        content.pop('scans')  # per-scan arrays: the CLI's JSON has room for them, a topic not
-        content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
-                            paper_consistent=assessment.result.consistent,
-                            update_latency_s=self._latency, phi=self._phi, timing=self._timing,
-                            lost_scans=self._health().lost_scans,
-                            keyframes=snapshot.keyframe_count,
-                            judged_keyframes=judged.keyframe_count,
-                            inconsistent_stamps=judged.stamps[assessment.result.inconsistent]))
+        content = dict(self._verdict_report())
+        content.update(plain(dict(update_latency_s=self._latency, phi=self._phi,
+                                  timing=self._timing, lost_scans=self._health().lost_scans,
+                                  keyframes=snapshot.keyframe_count)))
         if self._feed.bridge_counts is not None:
-            content['slam_toolbox_bridge'] = asdict(self._feed.bridge_counts)
-        return plain(content)
+            content['slam_toolbox_bridge'] = plain(asdict(self._feed.bridge_counts))
+        return content
+
+    def _verdict_report(self) -> dict:
+        """The part of the report that only a new verdict changes, built once per verdict
+        (every update publishes a report; a verdict comes at most every explanation_period)."""
+        if self._verdict_content[0] is not self._verdict:
+            assessment, judged, _ = self._verdict
+            content = assessment_report(assessment, judged.stamps)
+            content.pop('scans')  # per-scan arrays: the CLI's JSON has room for them, a topic not
+            content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
+                                paper_consistent=assessment.result.consistent,
+                                judged_keyframes=judged.keyframe_count,
+                                inconsistent_stamps=judged.stamps[
+                                    assessment.result.inconsistent]))
+            self._verdict_content = (self._verdict, plain(content))
+        return self._verdict_content[1]
 
     def _health(self) -> MonitorHealth:
         snapshot = self._snapshot
