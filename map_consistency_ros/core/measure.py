@@ -92,27 +92,6 @@ def _rough_bearing(dx: float, dy: float) -> float:
 
 
 @numba.njit(cache=True)
-def _beam_side(ends: np.ndarray, sx: float, sy: float, beam: int, dx: float, dy: float) -> float:
-    """Positive when the direction (dx, dy) lies counter-clockwise of `beam` (within pi)."""
-    return (ends[beam, 0] - sx) * dy - (ends[beam, 1] - sy) * dx
-
-
-@numba.njit(cache=True)
-def _settle_wedge(ends: np.ndarray, sx: float, sy: float, wedge: int, bearing: float,
-                  increment: float, dx: float, dy: float) -> int:
-    """The exact wedge of direction (dx, dy), given the wedge of its rough bearing."""
-    last = ends.shape[0] - 1
-    low_angle = wedge * increment
-    high_angle = low_angle + (increment if wedge < last else TWO_PI - last * increment)
-    if bearing - low_angle < BEARING_SLACK and _beam_side(ends, sx, sy, wedge, dx, dy) < 0.0:
-        return wedge - 1 if wedge > 0 else last
-    following = wedge + 1 if wedge < last else 0
-    if high_angle - bearing < BEARING_SLACK and _beam_side(ends, sx, sy, following, dx, dy) >= 0.0:
-        return following
-    return wedge
-
-
-@numba.njit(cache=True)
 def _window_bound(best2: float, rho2: float) -> float:
     """An upper bound of asin(best / rho): the half-width of the bearings around p from which
     an edge can be closer than `best` (tan >= sin keeps it conservative)."""
@@ -120,27 +99,18 @@ def _window_bound(best2: float, rho2: float) -> float:
 
 
 @numba.njit(cache=True)
-def _star_distance(ends: np.ndarray, sx: float, sy: float, bearing: float, increment: float,
-                   full_circle: bool, rough: bool, px: float, py: float) -> float:
-    """d_i(p) by the angular index of the star-shaped polygon.
+def _boundary_distance(ends: np.ndarray, sx: float, sy: float, wedge: int, bearing: float,
+                       increment: float, full_circle: bool, px: float, py: float) -> float:
+    """d_i(p) for a point p strictly inside the star-shaped polygon, in `wedge`, at `bearing`
+    (p's bearing from the sensor counted from the first beam, in [0, 2 pi], possibly rough).
 
-    `bearing` is p's bearing from the sensor, counted from the first beam, in [0, 2 pi]: exact,
-    or (`rough`) within 1.2e-5 rad. Wedge m spans the bearings [m, m + 1) * increment; the last
-    wedge closes the circle. A rough bearing picks p's wedge, cross products with the wedge's
-    two beams settle it exactly. An edge in a wedge an angle g away from p's bearing is at least
-    rho * sin(g) from p, so the outward scan stops once g exceeds asin(best / rho); while best
-    is not below rho (p near the sensor) the window is the whole circle, and shrinks as soon as
-    a closer edge turns up.
+    An edge in a wedge an angle g away from p's bearing is at least rho * sin(g) from p, so the
+    outward scan stops once g exceeds asin(best / rho); while best is not below rho (p near
+    the sensor) the window is the whole circle, and shrinks as soon as a closer edge turns up.
     """
     beams = ends.shape[0]
     last = beams - 1
     last_width = TWO_PI - last * increment
-    dx, dy = px - sx, py - sy
-    wedge = min(int(bearing * (1.0 / increment)), last)
-    if rough:
-        wedge = _settle_wedge(ends, sx, sy, wedge, bearing, increment, dx, dy)
-    if wedge == last and not full_circle:
-        return 0.0
     low_angle = wedge * increment
     high_angle = low_angle + (increment if wedge < last else last_width)
     # Keep the bearing within the settled wedge (it can be a rough error beyond, or wrapped).
@@ -149,13 +119,8 @@ def _star_distance(ends: np.ndarray, sx: float, sy: float, bearing: float, incre
     elif bearing > high_angle + math.pi:
         bearing -= TWO_PI
     bearing = min(max(bearing, low_angle), high_angle)
-    following = wedge + 1 if wedge < last else 0
-    ax, ay = ends[wedge, 0], ends[wedge, 1]
-    bx, by = ends[following, 0], ends[following, 1]
-    # Beams turn counter-clockwise, so the interior lies left of every end-point edge.
-    if (bx - ax) * (py - ay) - (by - ay) * (px - ax) <= 0.0:
-        return 0.0
-    best2 = _segment_distance2(px, py, ax, ay, bx, by)
+    dx, dy = px - sx, py - sy
+    best2 = _edge_distance2(ends, sx, sy, full_circle, wedge, px, py)
     rho2 = dx * dx + dy * dy
     window = _window_bound(best2, rho2)
     left, right = wedge, wedge
@@ -213,28 +178,68 @@ def _naive_distance(ends: np.ndarray, sx: float, sy: float, full_circle: bool,
 @numba.njit(cache=True)
 def _fill_distances(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
                     extents: np.ndarray, angle_min: float, increment: float, full_circle: bool,
-                    naive: bool, polygon: int, other: int, out: np.ndarray) -> None:
-    """out[k] = d_polygon(end point k of other), 0 where that end point is invalid."""
+                    naive: bool, polygon: int, other: int, out: np.ndarray,
+                    found: np.ndarray, bearings: np.ndarray) -> None:
+    """out[k] = d_polygon(end point k of other), 0 where that end point is invalid.
+
+    A point's bearing gives its beam wedge (wedge m spans the bearings [m, m + 1) * increment
+    from the first beam; the last one closes the circle), one cross product with that wedge's
+    end-point edge whether it is inside. Two passes: which end points lie inside, written
+    without branches on the data (inside or not is a coin toss near the walls both scans see,
+    and mispredicted branches cost more than the arithmetic they would skip), then the
+    distances of those, a minority. `found` (int64) and `bearings`, both (K,), are scratch.
+    """
     ends = endpoints[polygon]
+    points = endpoints[other]
+    usable = valid[other]
     sx, sy = poses[polygon, 0], poses[polygon, 1]
     first_beam = (poses[polygon, 2] + angle_min + math.pi) % TWO_PI - math.pi
     xmin, ymin, xmax, ymax = extents[polygon, 0], extents[polygon, 1], extents[polygon, 2], \
         extents[polygon, 3]
+    beams = points.shape[0]
+    last = beams - 1
+    last_width = TWO_PI - last * increment
+    inverse = 1.0 / increment
     # Every wedge is at least half a beam wide; the rough bearing needs room to be one off.
     rough = increment >= 8.0 * BEARING_SLACK
-    for beam in range(endpoints.shape[1]):
-        px, py = endpoints[other, beam, 0], endpoints[other, beam, 1]
+    inside = 0  # found[:inside] = beam * beams + wedge of the inside points, with bearings
+    for beam in range(beams):
+        out[beam] = 0.0
+        px, py = points[beam, 0], points[beam, 1]
         # A point on or outside the polygon's bounding box is not strictly inside it.
-        if not valid[other, beam] or px <= xmin or py <= ymin or px >= xmax or py >= ymax:
-            out[beam] = 0.0
-        elif naive:
+        if not usable[beam] or px <= xmin or py <= ymin or px >= xmax or py >= ymax:
+            continue
+        if naive:
             out[beam] = _naive_distance(ends, sx, sy, full_circle, px, py)
-        else:
-            dx, dy = px - sx, py - sy
-            # Both angles lie in [-pi, pi], so at most one turn brings the bearing into [0, 2 pi].
-            angle = (_rough_bearing(dx, dy) if rough else math.atan2(dy, dx)) - first_beam
-            out[beam] = _star_distance(ends, sx, sy, angle + TWO_PI if angle < 0.0 else angle,
-                                       increment, full_circle, rough, px, py)
+            continue
+        dx, dy = px - sx, py - sy
+        # Both angles lie in [-pi, pi], so at most one turn brings the bearing into [0, 2 pi].
+        angle = (_rough_bearing(dx, dy) if rough else math.atan2(dy, dx)) - first_beam
+        bearing = angle + TWO_PI if angle < 0.0 else angle
+        wedge = min(int(bearing * inverse), last)
+        if rough:  # near a side of its wedge, the cross product with that side's beam decides
+            low_angle = wedge * increment
+            high_angle = low_angle + (increment if wedge < last else last_width)
+            previous = wedge - 1 if wedge > 0 else last
+            following = wedge + 1 if wedge < last else 0
+            # positive when (dx, dy) lies counter-clockwise of the beam (within pi)
+            low_side = (ends[wedge, 0] - sx) * dy - (ends[wedge, 1] - sy) * dx
+            high_side = (ends[following, 0] - sx) * dy - (ends[following, 1] - sy) * dx
+            below = (bearing - low_angle < BEARING_SLACK) & (low_side < 0.0)
+            above = (high_angle - bearing < BEARING_SLACK) & (high_side >= 0.0)
+            wedge = previous if below else (following if above else wedge)
+        following = wedge + 1 if wedge < last else 0
+        ax, ay = ends[wedge, 0], ends[wedge, 1]
+        # Beams turn counter-clockwise, so the interior lies left of every end-point edge.
+        left = (ends[following, 0] - ax) * (py - ay) - (ends[following, 1] - ay) * (px - ax)
+        bearings[inside] = bearing
+        found[inside] = wedge + beams * beam
+        inside += (left > 0.0) & (full_circle | (wedge != last))
+    for index in range(inside):
+        beam = found[index] // beams
+        out[beam] = _boundary_distance(ends, sx, sy, found[index] - beams * beam,
+                                       bearings[index], increment, full_circle,
+                                       points[beam, 0], points[beam, 1])
 
 
 @numba.njit(cache=True)
@@ -258,12 +263,13 @@ def _pair_kernel(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
     largest = np.zeros((count, keep))
     beams = endpoints.shape[1]
     for index in numba.prange(count):
-        distances = np.empty(2 * beams)
+        distances, bearings = np.empty(2 * beams), np.empty(beams)
+        found = np.empty(beams, dtype=np.int64)
         first, second = pairs[index, 0], pairs[index, 1]
         _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
-                        naive, first, second, distances[:beams])
+                        naive, first, second, distances[:beams], found, bearings)
         _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
-                        naive, second, first, distances[beams:])
+                        naive, second, first, distances[beams:], found, bearings)
         row = largest[index]
         total, inside = 0.0, 0
         for distance in distances:
@@ -340,9 +346,11 @@ def pairs_point_distances(scans: ScanSet, pairs: np.ndarray) -> np.ndarray:
 def _pairs_distances(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
                      extents: np.ndarray, angle_min: float, increment: float,
                      full_circle: bool, pairs: np.ndarray, out: np.ndarray) -> None:
+    beams = endpoints.shape[1]
     for pair in numba.prange(pairs.shape[0]):
         i, j = pairs[pair, 0], pairs[pair, 1]
+        found, bearings = np.empty(beams, dtype=np.int64), np.empty(beams)
         _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
-                        False, i, j, out[pair, 0])
+                        False, i, j, out[pair, 0], found, bearings)
         _fill_distances(endpoints, poses, valid, extents, angle_min, increment, full_circle,
-                        False, j, i, out[pair, 1])
+                        False, j, i, out[pair, 1], found, bearings)
