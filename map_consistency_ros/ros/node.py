@@ -139,6 +139,7 @@ class MapConsistencyNode(Node):
         self._last_problem = ('', -math.inf)
         self._warned: dict[str, float] = {}
         self._latency: float | None = None  # arrival of a change -> its verdict published
+        self._updates = 0  # verdicts published for changes of the map (since the start)
         self._timing: dict[str, float] = {}  # seconds per stage of the last update
         self._phi: float | None = None
         self._dds_lost = 0  # scans the middleware reported lost
@@ -285,8 +286,10 @@ class MapConsistencyNode(Node):
             self._received()
         if record is not None:
             with self._lock:
-                # the full estimate: a newer one replaces it
-                self._estimate = (time.monotonic(), record)
+                # the full estimate: a newer one replaces it, and the wait counts from the
+                # first one it replaced (the latency is that of the oldest input answered)
+                first = time.monotonic() if self._estimate is None else self._estimate[0]
+                self._estimate = (first, record)
             self._wake.set()
 
     def _on_pose(self, msgtype: str, msg) -> None:
@@ -340,13 +343,13 @@ class MapConsistencyNode(Node):
 
     def _work_once(self) -> None:
         """Apply what arrived, answer queued jobs, publish the first stage's update."""
-        changed_at = None  # arrival of the newest record that changed the map
+        changed_at = None  # arrival of the oldest record that changed the map
         records = self._take()
         taken = time.monotonic()
         for arrival, record in records:
             summary, reset = self._apply(record)
             if summary is not None or reset:
-                changed_at = arrival
+                changed_at = arrival if changed_at is None else min(changed_at, arrival)
         applied_seconds = time.monotonic() - taken  # every record, changing the map or not
         while self._jobs:
             job, future = self._jobs.popleft()
@@ -495,6 +498,7 @@ class MapConsistencyNode(Node):
         self._timing.update(markers_s=built - start, publish_s=time.perf_counter() - built)
         if changed_at is not None:
             self._latency = time.monotonic() - changed_at
+            self._updates += 1
         self._report.publish(String(data=json.dumps(self._report_dict())))
         self._publish_diagnostics()
 
@@ -512,7 +516,8 @@ class MapConsistencyNode(Node):
         report of the CLI, scans named by their stamps, and the node's own figures."""
         snapshot = self._snapshot
         content = dict(self._verdict_report())
-        content.update(plain(dict(update_latency_s=self._latency, phi=self._phi,
+        content.update(plain(dict(update_latency_s=self._latency, updates=self._updates,
+                                  phi=self._phi,
                                   timing=self._timing, lost_scans=self._health().lost_scans,
                                   keyframes=snapshot.keyframe_count)))
         if self._feed.bridge_counts is not None:

@@ -351,6 +351,9 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(probe, intel):
     assert probe.consistent[-1] is False
     report = json.loads(probe.reports[-1])
     assert report['consistent'] is False and report['paper_consistent'] is False
+    # every update that changed the map is counted, and its latency is a plausible wait
+    assert report['updates'] >= 2 and 0.0 < report['update_latency_s'] < TIMEOUT
+    assert report['keyframes'] == SCANS
     assert report['summary_line'] == oracle.summary_line()
     assert report['misaligned_scans'] == pytest.approx(stamps[oracle.flagged].tolist())
     (region,) = report['misalignments']
