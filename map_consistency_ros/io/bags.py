@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.records import KeyframeEstimate, Record
+from map_consistency_ros.core.records import Record
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
-from map_consistency_ros.io.messages import (CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE, PATH_TYPE,
-                                             POSE_COVARIANCE_TYPE, POSE_TYPES, SCAN_TYPE,
-                                             constraints_message, graph_markers_message,
-                                             path_from_cdr, path_message, scan_message,
+from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE,
+                                             PATH_TYPE, POSE_COVARIANCE_TYPE, POSE_TYPES,
+                                             SCAN_TYPE, constraints_message,
+                                             graph_markers_message, path_message, scan_message,
                                              single_pose_message, to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
@@ -213,12 +213,18 @@ class BagReader:
         """
         topics = self.input_topics
         counts: dict[str, int] = {}
-        for connection, timestamp, message in self._messages(self._selected(topics),
-                                                             read_paths=True):
+        # the node's readers of the bytes (Paths, graph markers), where ROS 2 bags hold CDR
+        raw_types = () if self.is_ros1 else tuple(CDR_RECORDS)
+        for connection, timestamp, message in self._messages(self._selected(topics), raw_types):
             index = counts[connection.topic] = counts.get(connection.topic, 0) + 1
             try:
-                record = (message if isinstance(message, KeyframeEstimate)
-                          else to_record(connection.msgtype, message, self.max_range))
+                record = None
+                if isinstance(message, bytes):
+                    record = CDR_RECORDS[connection.msgtype](message)
+                    if record is None:  # a layout the reader leaves to the deserializer
+                        message = self._deserialize(message, connection.msgtype)
+                if record is None:
+                    record = to_record(connection.msgtype, message, self.max_range)
             except ValueError as error:
                 record = BadMessage(topic=connection.topic, index=index, reason=str(error))
             yield timestamp * 1e-9, record
@@ -241,18 +247,21 @@ class BagReader:
         except _bag_errors() as error:
             raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
 
-    def _messages(self, connections: list, read_paths: bool = False) -> Iterator[tuple]:
-        """(connection, log time, message); `read_paths`: the Paths of ROS 2 bags come as
-        their records, read from the CDR bytes as the node reads them (messages.path_from_cdr)."""
+    def _messages(self, connections: list, raw_types: tuple[str, ...] = ()) -> Iterator[tuple]:
+        """(connection, log time, message), the CDR bytes for the types of `raw_types`."""
         errors = _bag_errors()
-        cdr = read_paths and not self.is_ros1
         try:
             for connection, timestamp, data in self._reader.messages(connections):
-                record = (path_from_cdr(data) if cdr and connection.msgtype == PATH_TYPE
-                          else None)
-                yield connection, timestamp, (record if record is not None else
-                                              self._reader.deserialize(data, connection.msgtype))
+                yield connection, timestamp, (bytes(data) if connection.msgtype in raw_types
+                                              else self._reader.deserialize(data,
+                                                                            connection.msgtype))
         except errors as error:
+            raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
+
+    def _deserialize(self, data: bytes, msgtype: str):
+        try:
+            return self._reader.deserialize(data, msgtype)
+        except _bag_errors() as error:
             raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
 
     def static_transform(self, parent: str, child: str) -> np.ndarray | None:

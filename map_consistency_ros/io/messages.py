@@ -12,6 +12,7 @@ rosbags classes require.
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 
 import numpy as np
@@ -200,6 +201,16 @@ def constraints_to_numpy(msg) -> np.ndarray:
 def graph_markers_to_numpy(msg) -> tuple[np.ndarray, np.ndarray, str]:
     """(vertex ids (V,), positions (V, 2), frame) of a slam_toolbox graph_visualization array.
 
+    See _graph_vertices.
+    """
+    return _graph_vertices(
+        (marker.ns, marker.id, marker.type, marker.action, marker.pose.position.x,
+         marker.pose.position.y, marker.header.frame_id) for marker in msg.markers)
+
+
+def _graph_vertices(markers) -> tuple[np.ndarray, np.ndarray, str]:
+    """The vertices of markers given as (namespace, id, type, action, x, y, frame id).
+
     Only SPHERE markers of namespace `slam_toolbox` are vertices (the edges' LINE_LISTs live in
     `slam_toolbox_edges`); the orientation is ignored, slam_toolbox leaves it the identity.
     Markers are taken in order: DELETEALL forgets every vertex before it, DELETE the vertex of
@@ -212,28 +223,28 @@ def graph_markers_to_numpy(msg) -> tuple[np.ndarray, np.ndarray, str]:
     repeated: list[int] = []
     cleared = False
     frame_id = ''
-    for index, marker in enumerate(msg.markers):
-        if marker.action == MARKER_DELETEALL:
+    for index, (namespace, marker_id, marker_type, action, x, y, frame) in enumerate(markers):
+        if action == MARKER_DELETEALL:
             vertices.clear()
             repeated.clear()
             cleared = True
             continue
-        if marker.ns != SLAM_TOOLBOX_NAMESPACE:
+        if namespace != SLAM_TOOLBOX_NAMESPACE:
             continue
-        if marker.action == MARKER_DELETE:
-            vertices.pop(int(marker.id), None)
+        if action == MARKER_DELETE:
+            vertices.pop(int(marker_id), None)
             continue
-        if marker.action != MARKER_ADD or marker.type != MARKER_SPHERE:
-            raise ValueError(f'marker {index} (id {marker.id}) in namespace '
-                             f'{SLAM_TOOLBOX_NAMESPACE!r} has type {marker.type}, action '
-                             f'{marker.action}; a vertex is an added SPHERE')
-        position = (marker.pose.position.x, marker.pose.position.y)
+        if action != MARKER_ADD or marker_type != MARKER_SPHERE:
+            raise ValueError(f'marker {index} (id {marker_id}) in namespace '
+                             f'{SLAM_TOOLBOX_NAMESPACE!r} has type {marker_type}, action '
+                             f'{action}; a vertex is an added SPHERE')
+        position = (x, y)
         if not all(math.isfinite(value) for value in position):
-            raise ValueError(f'vertex {marker.id} has a non-finite position {position}')
-        if int(marker.id) in vertices:
-            repeated.append(int(marker.id))
-        vertices[int(marker.id)] = position
-        frame_id = frame_id or marker.header.frame_id
+            raise ValueError(f'vertex {marker_id} has a non-finite position {position}')
+        if int(marker_id) in vertices:
+            repeated.append(int(marker_id))
+        vertices[int(marker_id)] = position
+        frame_id = frame_id or frame
     if not cleared:
         raise ValueError('no DELETEALL marker: not a full slam_toolbox graph snapshot')
     if repeated:
@@ -243,6 +254,94 @@ def graph_markers_to_numpy(msg) -> tuple[np.ndarray, np.ndarray, str]:
     ids = np.fromiter(vertices, dtype=np.int64, count=len(vertices))
     positions = np.array(list(vertices.values()), dtype=np.float64).reshape(-1, 2)
     return ids, positions, frame_id
+
+
+class _CdrReader:
+    """Reads CDR (little endian, XCDR1) fields in order; IndexError past the end."""
+
+    _INT32 = struct.Struct('<i')
+    _THREE_INT32 = struct.Struct('<3i')
+    _FLOAT64_PAIR = struct.Struct('<2d')
+
+    def __init__(self, body: memoryview) -> None:
+        self.body, self.offset = body, 0
+
+    def _at(self, size: int, alignment: int) -> int:
+        start = _align(self.offset, alignment)
+        if start + size > len(self.body):
+            raise IndexError('CDR message shorter than its fields')
+        self.offset = start + size
+        return start
+
+    def uint32(self) -> int:
+        return int.from_bytes(self.body[self._at(4, 4):self.offset], 'little')
+
+    def int32s(self) -> tuple[int, int, int]:
+        return self._THREE_INT32.unpack_from(self.body, self._at(12, 4))
+
+    def float64_pair(self) -> tuple[float, float]:
+        return self._FLOAT64_PAIR.unpack_from(self.body, self._at(16, 8))
+
+    def skip(self, size: int, alignment: int) -> None:
+        if size:
+            self._at(size, alignment)
+
+    def string(self) -> str:
+        length = self.uint32()
+        start = self._at(length, 1)
+        return bytes(self.body[start:start + max(length - 1, 0)]).decode('utf-8', 'replace')
+
+    def sequence(self, element: int, alignment: int) -> None:
+        """Skip a sequence of fixed-size elements."""
+        self.skip(self.uint32() * element, alignment)
+
+
+def graph_markers_from_cdr(data: bytes) -> GraphSnapshot | None:
+    """The record of a serialized slam_toolbox graph_visualization MarkerArray, read from its
+    CDR bytes (visualization_msgs/Marker of ROS 2 Jazzy) without building a message object per
+    marker: that costs ~0.15 ms per marker, 0.3 s for a 2,000-vertex graph, all of it holding
+    the interpreter. None for a layout this does not read (big endian, XCDR2); ValueError as
+    graph_markers_to_numpy, and for a message shorter than its fields."""
+    if len(data) < _ENCAPSULATION + 4 or bytes(data[:2]) != _CDR_LE:
+        return None
+    reader = _CdrReader(memoryview(data)[_ENCAPSULATION:])
+    try:
+        markers = [_marker_fields(reader) for _ in range(reader.uint32())]
+    except IndexError as error:
+        raise ValueError(f'graph markers: {error}') from None
+    ids, positions, frame_id = _graph_vertices(markers)
+    return GraphSnapshot(ids=ids, positions=positions, frame_id=frame_id)
+
+
+def _marker_fields(reader: _CdrReader) -> tuple:
+    """(namespace, id, type, action, x, y, frame id) of the next Marker; the rest skipped."""
+    reader.skip(8, 4)  # header stamp
+    frame_id = reader.string()
+    namespace = reader.string()
+    marker_id, marker_type, action = reader.int32s()
+    x, y = reader.float64_pair()
+    reader.skip(8 + 32 + 24, 8)  # position z, orientation, scale
+    reader.skip(16 + 8 + 1, 4)  # color, lifetime, frame_locked
+    reader.sequence(24, 8)  # points
+    reader.sequence(16, 4)  # colors
+    reader.string()  # texture_resource
+    reader.skip(8, 4)  # texture: header stamp, frame id, format, data
+    reader.string()
+    reader.string()
+    reader.sequence(1, 1)
+    reader.sequence(8, 4)  # uv_coordinates
+    reader.string()  # text
+    reader.string()  # mesh_resource
+    reader.string()  # mesh_file: filename, data
+    reader.sequence(1, 1)
+    reader.skip(1, 1)  # mesh_use_embedded_materials
+    return namespace, marker_id, marker_type, action, x, y, frame_id
+
+
+# Message types whose records are read straight from their CDR bytes, by the node and by bag
+# replay alike: type -> reader (None for a layout left to the deserializer).
+CDR_RECORDS: dict[str, Callable[[bytes], Record | None]] = {
+    PATH_TYPE: path_from_cdr, MARKER_ARRAY_TYPE: graph_markers_from_cdr}
 
 
 def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:

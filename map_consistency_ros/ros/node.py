@@ -175,13 +175,14 @@ class MapConsistencyNode(Node):
             self.create_subscription(message_class(pose_type), 'pose',
                                      lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
                                      callback_group=poses)
+            # raw, the graph and the Path below: their bytes are read (messages.CDR_RECORDS)
+            # where message objects of the whole estimate would hold the interpreter for
+            # 50-150 us per pose
             if feed_settings.slam_toolbox:
                 self.create_subscription(message_class(messages.MARKER_ARRAY_TYPE),
                                          'graph_visualization', self._on_graph, GRAPH,
-                                         callback_group=poses)
+                                         callback_group=poses, raw=True)
         else:
-            # raw: the bytes are read with numpy (messages.path_from_cdr), where deserializing
-            # a Path of the whole estimate would hold the interpreter for ~50 us per pose
             self.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
                                      callback_group=poses, raw=True)
         self.create_subscription(message_class(messages.CONSTRAINTS_TYPE), 'constraints',
@@ -277,13 +278,21 @@ class MapConsistencyNode(Node):
         with self._lock:
             self._dds_lost += info.total_count_change
 
-    def _on_trajectory(self, data: bytes) -> None:
-        record = messages.path_from_cdr(data)
-        if record is None:  # a layout the fast reader leaves to the deserializer
-            record = self._convert('trajectory', messages.PATH_TYPE,
-                                   deserialize_message(data, Path))
-        else:
+    def _convert_bytes(self, topic: str, msgtype: str, data: bytes):
+        """The record of a raw subscription's message (None when it was bad)."""
+        try:
+            record = messages.CDR_RECORDS[msgtype](data)
+        except ValueError as error:
             self._received()
+            self._input_problem(topic, str(error))
+            return None
+        if record is None:  # a layout the reader leaves to the deserializer
+            return self._convert(topic, msgtype, deserialize_message(data, message_class(msgtype)))
+        self._received()
+        return record
+
+    def _on_trajectory(self, data: bytes) -> None:
+        record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
         if record is not None:
             with self._lock:
                 # the full estimate: a newer one replaces it, and the wait counts from the
@@ -295,8 +304,9 @@ class MapConsistencyNode(Node):
     def _on_pose(self, msgtype: str, msg) -> None:
         self._queue_pose(self._convert('pose', msgtype, msg))
 
-    def _on_graph(self, msg) -> None:
-        self._queue_pose(self._convert('graph_visualization', messages.MARKER_ARRAY_TYPE, msg))
+    def _on_graph(self, data: bytes) -> None:
+        self._queue_pose(self._convert_bytes('graph_visualization', messages.MARKER_ARRAY_TYPE,
+                                             data))
 
     def _queue_pose(self, record: PoseSample | GraphSnapshot | None) -> None:
         """Queue a single pose or graph snapshot (all kept, in order; None: it was bad)."""

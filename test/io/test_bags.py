@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.feed import MonitorFeed
-from map_consistency_ros.core.records import Constraints, KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                              PoseSample, Scan)
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io import bags, messages
 from map_consistency_ros.io.bags import BagReader, BagTopics, BagWriter
@@ -279,6 +280,26 @@ def test_paths_read_from_their_bytes_as_rosbags_deserializes_them(tmp_path, reco
             slow = messages.to_record(messages.PATH_TYPE, message)
             np.testing.assert_array_equal(fast.stamps, slow.stamps)
             np.testing.assert_array_equal(fast.poses, slow.poses)
+
+
+def test_graph_markers_read_from_their_bytes_as_rosbags_deserializes_them(tmp_path, recorded):
+    from rosbags.typesys import Stores, get_typestore
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    stamps, _, poses, _ = recorded
+    with BagWriter(tmp_path / 'bag', topics=BagTopics(poses='/pose')) as writer:
+        writer.write_single_pose(stamps[0], messages.POSE_COVARIANCE_TYPE, stamps[0], poses[0])
+        for count in (1, 4, 10):
+            writer.write_graph(stamps[count - 1], np.arange(count), poses[:count, :2])
+    with BagReader([tmp_path / 'bag']) as bag:
+        raw = [data for *_, data in bag.raw_messages(['/slam_toolbox/graph_visualization'])]
+        replayed = [record for _, record in bag.records() if isinstance(record, GraphSnapshot)]
+    assert len(raw) == len(replayed) == 3
+    for data, record in zip(raw, replayed):
+        slow = messages.to_record(messages.MARKER_ARRAY_TYPE,
+                                  typestore.deserialize_cdr(data, messages.MARKER_ARRAY_TYPE))
+        for fast in (messages.graph_markers_from_cdr(data), record):
+            np.testing.assert_array_equal(fast.ids, slow.ids)
+            np.testing.assert_array_equal(fast.positions, slow.positions)
 
 
 @pytest.mark.parametrize('msgtype', [messages.POSE_STAMPED_TYPE, messages.POSE_COVARIANCE_TYPE,

@@ -5,10 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from geometry_msgs.msg import Point
 from nav_msgs.msg import Path
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension
+from visualization_msgs.msg import MarkerArray, UVCoordinate
 
 from map_consistency_ros.core.scan_geometry import SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -126,6 +128,31 @@ def test_path_layouts_the_byte_reader_leaves_to_the_deserializer(intel):
     assert messages.path_from_cdr(b'\x01\x00' + data[2:]) is None  # big endian
     msg.poses[3].header.frame_id = 'odom'  # entries no longer evenly spaced
     assert messages.path_from_cdr(serialize_message(msg)) is None
+
+
+@pytest.mark.parametrize('vertices', [0, 1, 40])
+def test_graph_markers_read_from_their_bytes_as_rclpy_deserializes_them(intel, vertices):
+    log, _ = intel
+    msg = messages.graph_markers_message(message_class, 1.0, np.arange(vertices) * 3 + 1,
+                                         log.laser_poses[:vertices, :2], frame_id='map')
+    # every variable-size field of a Marker in use on some markers: each shifts the rest
+    for size, marker in enumerate(msg.markers[:4]):
+        marker.text, marker.texture_resource, marker.mesh_resource = 'x' * size, 'ab'[:size], 'm'
+        marker.colors = [ColorRGBA(r=1.0)] * size
+        marker.points = marker.points or [Point(x=2.0)] * size
+        marker.texture.format, marker.texture.data = 'png'[:size], bytes(range(size))
+        marker.mesh_file.filename, marker.mesh_file.data = 'f' * (size + 1), bytes(3 * size)
+        marker.uv_coordinates = [UVCoordinate(u=0.5)] * size
+        marker.texture.header = Header(frame_id='camera'[:size])  # the builder shares one
+    data = serialize_message(msg)
+    fast = messages.graph_markers_from_cdr(data)
+    slow = messages.to_record(messages.MARKER_ARRAY_TYPE, deserialize_message(data, MarkerArray))
+    np.testing.assert_array_equal(fast.ids, slow.ids)
+    np.testing.assert_array_equal(fast.positions, slow.positions)
+    assert fast.frame_id == slow.frame_id == ('map' if vertices else '')
+    with pytest.raises(ValueError, match='shorter than its fields'):
+        messages.graph_markers_from_cdr(data[:-20])
+    assert messages.graph_markers_from_cdr(b'\x01\x00' + data[2:]) is None  # big endian
 
 
 def test_yaw_of_an_unnormalised_tilted_quaternion():
