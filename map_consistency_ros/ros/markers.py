@@ -103,7 +103,13 @@ class MarkerUpdates:
     """The markers already published, to send only what changed (see the module docstring)."""
 
     def __init__(self) -> None:
-        self._keyframes: dict[int, tuple[bytes, Marker]] = {}
+        self._keyframes: dict[int, Marker] = {}
+        # what each keyframe id's marker shows, compared with the snapshot in one vectorized
+        # step: a Python loop over every keyframe on every update would grow with the map
+        self._shown = np.zeros(0, dtype=bool)
+        self._shown_poses = np.zeros((0, 3))
+        self._shown_verdicts = np.zeros(0, dtype=np.int64)
+        self._frame_id = ''
         self._verdict: tuple[Marker, Marker] | None = None  # points, changed places
         self._judged: Assessment | None = None
         self._legend: Marker | None = None
@@ -114,14 +120,20 @@ class MarkerUpdates:
         """Markers that differ from the last call; `points` computes the misaligned end points
         of `assessment` (the verdict on `judged`), called only when the verdict is new."""
         markers = []
+        ids, poses = snapshot.ids, snapshot.poses
         verdicts = _verdicts(snapshot, assessment, judged)
-        for key, pose, verdict in zip(snapshot.ids.tolist(), snapshot.poses, verdicts.tolist()):
-            identity = pose.tobytes() + bytes([verdict]) + frame_id.encode()
-            known = self._keyframes.get(key)
-            if known is None or known[0] != identity:
-                marker = _keyframe_marker(key, pose, _COLOURS[verdict], frame_id, stamp)
-                self._keyframes[key] = (identity, marker)
-                markers.append(marker)
+        self._make_room(int(ids.max()) + 1 if ids.size else 0, frame_id)
+        stale = np.flatnonzero(~self._shown[ids] | (self._shown_verdicts[ids] != verdicts)
+                               | np.any(self._shown_poses[ids] != poses, axis=1))
+        for index in stale.tolist():
+            key = int(ids[index])
+            marker = _keyframe_marker(key, poses[index], _COLOURS[int(verdicts[index])],
+                                      frame_id, stamp)
+            self._keyframes[key] = marker
+            markers.append(marker)
+        self._shown[ids[stale]] = True
+        self._shown_poses[ids[stale]] = poses[stale]
+        self._shown_verdicts[ids[stale]] = verdicts[stale]
         if assessment is not self._judged:
             self._judged = assessment
             drawn = np.zeros((0, 2)) if assessment.consistent else points()
@@ -133,15 +145,28 @@ class MarkerUpdates:
             markers.append(self._legend)
         return MarkerArray(markers=markers)
 
+    def _make_room(self, ids: int, frame_id: str) -> None:
+        """Room for keyframe ids below `ids`; a new frame redraws every keyframe."""
+        if frame_id != self._frame_id:
+            self._shown[:] = False
+            self._frame_id = frame_id
+        if ids > self._shown.size:
+            grow = max(ids, 2 * self._shown.size) - self._shown.size
+            self._shown = np.concatenate([self._shown, np.zeros(grow, dtype=bool)])
+            self._shown_poses = np.concatenate([self._shown_poses, np.zeros((grow, 3))])
+            self._shown_verdicts = np.concatenate([self._shown_verdicts,
+                                                   np.zeros(grow, dtype=np.int64)])
+
     def all(self) -> MarkerArray:
         """Every marker published so far, for a subscriber that joined late."""
-        markers = [marker for _, marker in self._keyframes.values()]
+        markers = list(self._keyframes.values())
         markers += [*(self._verdict or ()), *([self._legend] if self._legend else [])]
         return MarkerArray(markers=markers)
 
     def clear(self, frame_id: str, stamp: Time) -> MarkerArray:
         """DELETEALL (after a reset: the old session's markers go)."""
         self._keyframes.clear()
+        self._shown[:] = False
         self._verdict = self._judged = self._legend = None
         marker = Marker(action=Marker.DELETEALL)
         marker.header.frame_id, marker.header.stamp = frame_id, stamp

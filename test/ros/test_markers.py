@@ -102,5 +102,13 @@ def test_updates_carry_only_what_changed(shared_data, snapshot, assessment):
     assert {m.ns for m in again.markers} >= {POINTS_NAMESPACE, CHANGES_NAMESPACE}
     assert len(calls) == 2
     assert len(updates.all().markers) == snapshot.keyframe_count + 3
+    # another frame redraws every keyframe
+    elsewhere = updates.changed(moved, renewed, moved, points, 'odom', Time())
+    assert len([m for m in elsewhere.markers if m.ns == KEYFRAME_NAMESPACE]) == \
+        snapshot.keyframe_count
     [cleared] = updates.clear('map', Time()).markers
     assert cleared.action == Marker.DELETEALL and updates.all().markers == []
+    # after a reset every keyframe is drawn again
+    redrawn = updates.changed(moved, renewed, moved, points, 'odom', Time())
+    assert len([m for m in redrawn.markers if m.ns == KEYFRAME_NAMESPACE]) == \
+        snapshot.keyframe_count
