@@ -27,8 +27,9 @@ from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE,
                                              PATH_TYPE, POSE_COVARIANCE_TYPE, POSE_TYPES,
                                              SCAN_TYPE, constraints_message,
-                                             graph_markers_message, path_message, scan_message,
-                                             single_pose_message, to_record)
+                                             graph_markers_message, path_message,
+                                             record_from_cdr, scan_message, single_pose_message,
+                                             to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 STORAGES = ('mcap', 'sqlite3')
@@ -218,13 +219,9 @@ class BagReader:
         for connection, timestamp, message in self._messages(self._selected(topics), raw_types):
             index = counts[connection.topic] = counts.get(connection.topic, 0) + 1
             try:
-                record = None
-                if isinstance(message, bytes):
-                    record = CDR_RECORDS[connection.msgtype](message)
-                    if record is None:  # a layout the reader leaves to the deserializer
-                        message = self._deserialize(message, connection.msgtype)
-                if record is None:
-                    record = to_record(connection.msgtype, message, self.max_range)
+                record = (record_from_cdr(connection.msgtype, message, self._deserialize,
+                                          self.max_range) if isinstance(message, bytes)
+                          else to_record(connection.msgtype, message, self.max_range))
             except ValueError as error:
                 record = BadMessage(topic=connection.topic, index=index, reason=str(error))
             yield timestamp * 1e-9, record

@@ -259,7 +259,6 @@ def _graph_vertices(markers) -> tuple[np.ndarray, np.ndarray, str]:
 class _CdrReader:
     """Reads CDR (little endian, XCDR1) fields in order; IndexError past the end."""
 
-    _INT32 = struct.Struct('<i')
     _THREE_INT32 = struct.Struct('<3i')
     _FLOAT64_PAIR = struct.Struct('<2d')
 
@@ -342,6 +341,15 @@ def _marker_fields(reader: _CdrReader) -> tuple:
 # replay alike: type -> reader (None for a layout left to the deserializer).
 CDR_RECORDS: dict[str, Callable[[bytes], Record | None]] = {
     PATH_TYPE: path_from_cdr, MARKER_ARRAY_TYPE: graph_markers_from_cdr}
+
+
+def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str], object],
+                    max_range: float = math.inf) -> Record:
+    """The record of serialized message `data` of a type in CDR_RECORDS: read from its bytes,
+    or, for a layout the reader leaves, `deserialize(data, msgtype)` and to_record. ValueError
+    for unusable content, as to_record."""
+    record = CDR_RECORDS[msgtype](data)
+    return to_record(msgtype, deserialize(data, msgtype), max_range) if record is None else record
 
 
 def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:

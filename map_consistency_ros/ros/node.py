@@ -251,17 +251,20 @@ class MapConsistencyNode(Node):
             self._warned[topic] = now
             self.get_logger().warning(f'ignored bad input on {topic}: {message}')
 
-    def _received(self) -> None:
+    def _record(self, topic: str, convert: Callable[[], object]):
+        """The record `convert()` makes of a message that just arrived on `topic`; None, and
+        the problem counted, when it was bad."""
         with self._lock:
             self._last_input = self._now()
-
-    def _convert(self, topic: str, msgtype: str, msg):
-        self._received()
         try:
-            return messages.to_record(msgtype, msg, self._feed.settings.max_range)
+            return convert()
         except ValueError as error:
             self._input_problem(topic, str(error))
             return None
+
+    def _convert(self, topic: str, msgtype: str, msg):
+        return self._record(topic, lambda: messages.to_record(msgtype, msg,
+                                                              self._feed.settings.max_range))
 
     def _on_scan(self, msg) -> None:
         record = self._convert('scan', messages.SCAN_TYPE, msg)
@@ -280,16 +283,8 @@ class MapConsistencyNode(Node):
 
     def _convert_bytes(self, topic: str, msgtype: str, data: bytes):
         """The record of a raw subscription's message (None when it was bad)."""
-        try:
-            record = messages.CDR_RECORDS[msgtype](data)
-        except ValueError as error:
-            self._received()
-            self._input_problem(topic, str(error))
-            return None
-        if record is None:  # a layout the reader leaves to the deserializer
-            return self._convert(topic, msgtype, deserialize_message(data, message_class(msgtype)))
-        self._received()
-        return record
+        return self._record(topic, lambda: messages.record_from_cdr(
+            msgtype, data, _deserialized, self._feed.settings.max_range))
 
     def _on_trajectory(self, data: bytes) -> None:
         record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
@@ -731,6 +726,15 @@ def _message_executor(node: MapConsistencyNode) -> Executor:
         else:
             return EventsExecutor()
     return MultiThreadedExecutor(num_threads=4)
+
+
+def _deserialized(data: bytes, msgtype: str):
+    """rclpy's message of `data`; ValueError for bytes it cannot decode (a raw publisher can
+    send anything)."""
+    try:
+        return deserialize_message(data, message_class(msgtype))
+    except RuntimeError as error:
+        raise ValueError(f'undecodable {msgtype} message ({error})') from None
 
 
 def _yield_to_updates() -> None:
