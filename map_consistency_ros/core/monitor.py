@@ -29,6 +29,7 @@ import numba
 import numpy as np
 
 from map_consistency_ros.core import se2
+from map_consistency_ros.core.arrays import with_rows
 # _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   _robust_sums, evaluate_pairs, local_scales)
@@ -217,7 +218,7 @@ class _PairCache:
         kept = int(np.count_nonzero(keep))
         (self._pairs, self._distance_sum, self._point_count, self._largest,
          self._trimmed_sum, self._trimmed_count) = (
-            _with_capacity(array[:self.size][keep], array.shape[0]) for array in self._arrays())
+            with_rows(array[:self.size][keep], array.shape[0]) for array in self._arrays())
         self.size = kept
 
     def retain(self, keys: np.ndarray) -> None:
@@ -240,7 +241,7 @@ class _PairCache:
             capacity = max(2 * self._pairs.shape[0], end)
             (self._pairs, self._distance_sum, self._point_count, self._largest,
              self._trimmed_sum, self._trimmed_count) = (
-                _with_capacity(array[:self.size], capacity) for array in self._arrays())
+                with_rows(array[:self.size], capacity) for array in self._arrays())
         self._pairs[self.size:end] = _key_slots(keys)
         self._distance_sum[self.size:end] = measures.distance_sum
         self._point_count[self.size:end] = measures.point_count
@@ -282,12 +283,11 @@ class _Keyframes:
     def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
                ranges: np.ndarray) -> int:
         if self.count == self.stamps.size:
-            grow = self.count
-            self.stamps = np.concatenate([self.stamps, np.zeros(grow)])
-            self.poses = np.concatenate([self.poses, np.zeros((grow, 3))])
-            self.incremental = np.concatenate([self.incremental, np.zeros((grow, 3))])
-            self.ranges = np.concatenate([self.ranges, np.zeros((grow, self.ranges.shape[1]))])
-            self.stride = np.concatenate([self.stride, np.ones(grow, dtype=np.int64)])
+            rows = 2 * self.count
+            self.stamps, self.poses, self.incremental, self.ranges = (
+                with_rows(array, rows)
+                for array in (self.stamps, self.poses, self.incremental, self.ranges))
+            self.stride = with_rows(self.stride, rows, fill=1)
         slot = self.count
         self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
         self.ranges[slot] = ranges
@@ -340,13 +340,8 @@ class _Placement:
             capacity = max(needed, 2 * self._fresh.size, 16)
             for name in SCAN_ARRAYS:
                 part = getattr(placed, name)
-                grown = np.zeros((capacity, *part.shape[1:]), dtype=part.dtype)
-                if name in self._rows:
-                    grown[:self._fresh.size] = self._rows[name]
-                self._rows[name] = grown
-            fresh = np.zeros(capacity, dtype=bool)
-            fresh[:self._fresh.size] = self._fresh
-            self._fresh = fresh
+                self._rows[name] = with_rows(self._rows.get(name, part[:0]), capacity)
+            self._fresh = with_rows(self._fresh, capacity)
         for name in SCAN_ARRAYS:
             self._rows[name][slots] = getattr(placed, name)
         self._fresh[slots] = True
@@ -757,13 +752,6 @@ class ConsistencyMonitor:
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
-
-
-def _with_capacity(rows: np.ndarray, capacity: int) -> np.ndarray:
-    """A new array of `capacity` rows that starts with `rows` (the rest unset: never read)."""
-    grown = np.empty((capacity,) + rows.shape[1:], dtype=rows.dtype)
-    grown[:len(rows)] = rows
-    return grown
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:

@@ -11,6 +11,8 @@ from collections import defaultdict
 import numba
 import numpy as np
 
+from map_consistency_ros.core.arrays import with_rows
+
 
 def _checked_extents(extents: np.ndarray) -> np.ndarray:
     extents = np.asarray(extents, dtype=np.float64)
@@ -126,8 +128,7 @@ class ScanExtentIndex:
     def _row_of(self, scan_id: int) -> int:
         row = self._row.setdefault(scan_id, len(self._row))
         if row == len(self._ids):
-            self._ids = np.concatenate([self._ids, np.zeros(row, dtype=np.int64)])
-            self._boxes = np.concatenate([self._boxes, np.zeros((row, 4))])
+            self._ids, self._boxes = with_rows(self._ids, 2 * row), with_rows(self._boxes, 2 * row)
         self._ids[row] = scan_id
         return row
 

@@ -18,6 +18,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from map_consistency_ros.core import se2
+from map_consistency_ros.core.arrays import with_rows
 from map_consistency_ros.core.explanation import Assessment
 from map_consistency_ros.core.monitor import MonitorSnapshot
 
@@ -151,11 +152,10 @@ class MarkerUpdates:
             self._shown[:] = False
             self._frame_id = frame_id
         if ids > self._shown.size:
-            grow = max(ids, 2 * self._shown.size) - self._shown.size
-            self._shown = np.concatenate([self._shown, np.zeros(grow, dtype=bool)])
-            self._shown_poses = np.concatenate([self._shown_poses, np.zeros((grow, 3))])
-            self._shown_verdicts = np.concatenate([self._shown_verdicts,
-                                                   np.zeros(grow, dtype=np.int64)])
+            rows = max(ids, 2 * self._shown.size)
+            self._shown, self._shown_poses, self._shown_verdicts = (
+                with_rows(array, rows)
+                for array in (self._shown, self._shown_poses, self._shown_verdicts))
 
     def all(self) -> MarkerArray:
         """Every marker published so far, for a subscriber that joined late."""
