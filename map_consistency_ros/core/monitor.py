@@ -378,10 +378,8 @@ class ConsistencyMonitor:
         self._placed, self._placed_incremental = _Placement(), _Placement()
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
-        # _path_slots of (trajectory number, keyframe count): a new trajectory or a new
-        # keyframe changes them
-        self._path_version = 0
-        self._path_slots_of: tuple[tuple[int, int], np.ndarray] = ((-1, -1), np.zeros(0))
+        # _path_slots at a keyframe count; a new trajectory clears it
+        self._path_slots_of: tuple[int, np.ndarray] | None = None
         self._result: ConsistencyResult | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
@@ -479,7 +477,7 @@ class ConsistencyMonitor:
             warnings.append(f'{int(duplicate.sum())} trajectory poses with a duplicated stamp '
                             'skipped (the first is kept)')
         self._path_stamps, self._path_poses = stamps[~duplicate], poses[~duplicate]
-        self._path_version += 1
+        self._path_slots_of = None
         return self._apply_path(tuple(warnings))
 
     def refresh(self) -> UpdateSummary:
@@ -596,11 +594,12 @@ class ConsistencyMonitor:
     def _path_slots(self) -> np.ndarray:
         """For each pose of the last trajectory, its keyframe slot or -1 (a copy: callers
         fill in slots they register)."""
-        key = (self._path_version, self.keyframe_count)
-        if self._path_slots_of[0] != key:  # the node asks on every scan, for `pending`
-            slots = (np.full(self._path_stamps.size, -1, dtype=np.int64) if key[1] == 0 else
+        count = self.keyframe_count
+        if self._path_slots_of is None or self._path_slots_of[0] != count:
+            # kept: the node asks on every scan whether one is pending
+            slots = (np.full(self._path_stamps.size, -1, dtype=np.int64) if count == 0 else
                      self._keyframes.match(self._path_stamps, self.settings.stamp_tolerance))
-            self._path_slots_of = (key, slots)
+            self._path_slots_of = (count, slots)
         return self._path_slots_of[1].copy()
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
