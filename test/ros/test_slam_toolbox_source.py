@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 
 from map_consistency_ros.io import messages
 from map_consistency_ros.io.bags import BagTopics, BagWriter
@@ -69,3 +72,28 @@ def test_slam_toolbox_source_matches_replay(slam_toolbox_stream, tmp_path, node_
     assert expected['inconsistent_scans'] > 0  # the paper's test sees the wrong loop closure
     assert node_report.get('slam_toolbox_bridge') == report['slam_toolbox_bridge']
     node_agrees(node_report, report, code)
+
+
+def test_graph_bytes_that_are_no_marker_array_are_counted_as_bad_input(node_under_test):
+    # the node reads graph markers from their bytes: broken ones must not end it
+    node = node_under_test('-p', 'pose_source:=slam_toolbox',
+                           '-r', f'graph_visualization:={GRAPH_TOPIC}')
+    problems: list[str] = []
+
+    def on_status(message: DiagnosticArray) -> None:
+        for status in message.status:
+            if status.name == 'map_consistency: map':
+                problems.extend(kv.value for kv in status.values if kv.key == 'input problems')
+
+    node.probe.create_subscription(DiagnosticArray, '/diagnostics', on_status, 10)
+    graph_pub = node.publisher(messages.MARKER_ARRAY_TYPE, GRAPH_TOPIC, RELIABLE)
+    node.wait_for_subscriptions()
+    whole = serialize_message(messages.graph_markers_message(message_class, 1.0, np.arange(3),
+                                                             np.zeros((3, 2))))
+    graph_pub.publish(whole[:len(whole) // 2])  # cut: the byte reader refuses it
+    graph_pub.publish(b'\x01\x00\x00\x00\x05')  # not even a header: rclpy cannot decode it
+    deadline = time.monotonic() + 30.0
+    while (not problems or problems[-1] != '2') and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert problems and problems[-1] == '2'
+    assert node.process.poll() is None
