@@ -184,10 +184,10 @@ def _fill_distances(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
 
     A point's bearing gives its beam wedge (wedge m spans the bearings [m, m + 1) * increment
     from the first beam; the last one closes the circle), one cross product with that wedge's
-    end-point edge whether it is inside. Two passes: which end points lie inside, written
-    without branches on the data (inside or not is a coin toss near the walls both scans see,
-    and mispredicted branches cost more than the arithmetic they would skip), then the
-    distances of those, a minority. `found` (int64) and `bearings`, both (K,), are scratch.
+    end-point edge whether it is inside. Two passes: which end points lie inside, with no
+    branch on inside or not (a coin toss near the walls both scans see, and mispredicted
+    branches cost more than the arithmetic they would skip), then the distances of those, a
+    minority. `found` (int64) and `bearings`, both (K,), are scratch.
     """
     ends = endpoints[polygon]
     points = endpoints[other]
@@ -217,9 +217,11 @@ def _fill_distances(endpoints: np.ndarray, poses: np.ndarray, valid: np.ndarray,
         angle = (_rough_bearing(dx, dy) if rough else math.atan2(dy, dx)) - first_beam
         bearing = angle + TWO_PI if angle < 0.0 else angle
         wedge = min(int(bearing * inverse), last)
-        if rough:  # near a side of its wedge, the cross product with that side's beam decides
-            low_angle = wedge * increment
-            high_angle = low_angle + (increment if wedge < last else last_width)
+        low_angle = wedge * increment
+        high_angle = low_angle + (increment if wedge < last else last_width)
+        # Near a side of its wedge (about one point in a hundred: a branch that predicts well),
+        # the cross product with that side's beam decides.
+        if rough and (bearing - low_angle < BEARING_SLACK or high_angle - bearing < BEARING_SLACK):
             previous = wedge - 1 if wedge > 0 else last
             following = wedge + 1 if wedge < last else 0
             # positive when (dx, dy) lies counter-clockwise of the beam (within pi)
