@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_tune.py [--false-loops 100] [--reference-tree DIR]
 
 Builds the graph as `tune --build ... --false-loops 100 --corrupt-guess` does, saves it as g2o
-with its laser data, then runs `map-consistency tune GRAPH.g2o` (default search: 40 grid steps,
+with its laser data, then runs `map-consistency tune GRAPH.g2o` (default search: 20 grid steps,
 tolerance 1e-4) as fresh processes and reads their summaries: this tree with its defaults, this
 tree with the exhaustive search (`--flat-tolerance 0 --reuse-tolerance 0`: every pair measured on
 every map, golden section down to the tolerance) and, with `--reference-tree`, another checkout
