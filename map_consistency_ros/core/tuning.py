@@ -40,9 +40,9 @@ class TuningSettings:
     The range is the original optimizer tool's; its grid had 40 steps. 20 steps (0.2 apart in
     sqrt(Phi)) found the same Phi* region on eleven built graphs (Intel and Freiburg 079, 0 to
     300 false loop closures): M(Phi*) within 0.07 % of the 40-step search, the same verdict,
-    the flagged scans within one and the tuned map's RMS within 2 mm, in half the
-    evaluations. `sqrt_grid` spaces the grid evenly in sqrt(Phi), otherwise in Phi. `workers` DCS solves
-    run at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
+    the flagged scans within one and the tuned map's RMS within 2 mm, in half the evaluations.
+    `sqrt_grid` spaces the grid evenly in sqrt(Phi), otherwise in Phi. `workers` DCS solves run
+    at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
     size, so memory is rarely the limit. `flat_tolerance`: the golden section stops once its two
     inner M values differ by less than this fraction of them (the profile is flat within its
     noise there; 0 refines to `tolerance`). `reuse_tolerance` (metres): a pair's M_ij is reused
@@ -302,10 +302,10 @@ def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
 
     def values(*coordinates: float) -> list[float]:
         nonlocal done
+        evaluations = profile.evaluate_many(
+            [_to_phi(coordinate, settings) for coordinate in coordinates], progress, done, total)
         done += len(coordinates)
-        return [item.value for item in profile.evaluate_many(
-            [_to_phi(coordinate, settings) for coordinate in coordinates], progress,
-            done - len(coordinates), total)]
+        return [item.value for item in evaluations]
 
     inner_low = high - _GOLDEN * (high - low)
     inner_high = low + _GOLDEN * (high - low)
