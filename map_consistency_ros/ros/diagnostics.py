@@ -36,6 +36,7 @@ class MonitorHealth:
     misaligned_scans: int = 0
     misaligned_regions: int = 0
     changed_places: int = 0
+    starting: bool = False  # the compiled kernels are still loading; inputs queue meanwhile
 
     @property
     def loss(self) -> str:
@@ -49,8 +50,13 @@ class MonitorHealth:
 
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
-    """(level, message): STALE without recent input, ERROR for an inconsistent map, WARN for
-    no verdict yet, lost input or a recent bad message, OK otherwise."""
+    """(level, message): WARN while the node starts, STALE without recent input, ERROR for an
+    inconsistent map, WARN for no verdict yet, lost input or a recent bad message, OK
+    otherwise."""
+    if health.starting:
+        received = ('nothing received yet' if health.seconds_since_input is None
+                    else f'{health.queued_scans} scans queued')
+        return DiagnosticStatus.WARN, f'starting: loading the compiled kernels ({received})'
     if health.seconds_since_input is None:
         return DiagnosticStatus.STALE, 'no scan or trajectory received yet'
     if health.seconds_since_input > health.stale_timeout:
@@ -76,6 +82,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
     """The DiagnosticStatus of the map with the design's key-values."""
     level, message = status_level(health)
     values = {
+        'ready': 'no' if health.starting else 'yes',
         'scans': str(health.keyframes),
         'buffered scans': str(health.buffered_scans),
         'overlapping pairs': str(health.overlapping_pairs),

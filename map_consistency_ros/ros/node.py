@@ -125,6 +125,7 @@ class MapConsistencyNode(Node):
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
+        self._ready = threading.Event()  # set once the worker has loaded the kernels
         # queued records with their arrival (time.monotonic), for the update latency
         self._scans: deque[tuple[float, Scan]] = deque()
         # single poses and graph snapshots, in arrival order: the slam_toolbox bridge's
@@ -327,6 +328,7 @@ class MapConsistencyNode(Node):
     def _work(self) -> None:
         # records queue meanwhile: the first update then finds the kernels loaded
         warm_up()
+        self._ready.set()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)
             self._wake.clear()
@@ -573,7 +575,7 @@ class MapConsistencyNode(Node):
             stale_timeout=stale_timeout, queued_scans=queued,
             lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
             poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
-            last_reset=feed.last_reset)
+            last_reset=feed.last_reset, starting=not self._ready.is_set())
 
     def _publish_diagnostics(self) -> None:
         status = map_status(self._health(), self.get_fully_qualified_name())

@@ -34,6 +34,10 @@ BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
      '3 keyframe poses name scans never received'),
     ({**BROKEN, 'lost_scans': 2}, DiagnosticStatus.ERROR, 'objects); 2 scans lost'),
     ({'gap_scans': 40}, DiagnosticStatus.OK, 'map CONSISTENT: '),  # an estimate
+    ({'starting': True, 'seconds_since_input': None, 'consistent': None}, DiagnosticStatus.WARN,
+     'starting: loading the compiled kernels (nothing received yet)'),
+    ({'starting': True, 'queued_scans': 40, 'consistent': None}, DiagnosticStatus.WARN,
+     'starting: loading the compiled kernels (40 scans queued)'),
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
@@ -49,6 +53,9 @@ def test_key_values_carry_the_figures():
     assert values['failed pairs'] == '4' and values['inconsistent scans'] == '0'
     assert values['misaligned regions'] == '0' and values['changed places'] == '2'
     assert values['update latency (ms)'] == '4.2'
+    assert values['ready'] == 'yes'
+    assert {kv.key: kv.value for kv in map_status(
+        dataclasses.replace(HEALTHY, starting=True), '/mc').values}['ready'] == 'no'
     assert values['phi'] == '0.125000'
     assert values['input problems'] == '2' and values['last input problem'] == 'none'
     unknown = {kv.key: kv.value for kv in map_status(

@@ -299,7 +299,13 @@ def test_a_parameter_out_of_range_ends_the_node_with_one_line(ros_env):
 
 def test_before_any_input_the_node_is_stale_and_has_nothing_to_check(idle_probe):
     probe = idle_probe
-    status = _wait(probe.latest_status, what='a first status')
+    first = _wait(probe.latest_status, what='a first status')
+    assert first.level in (DiagnosticStatus.WARN, DiagnosticStatus.STALE)
+    status = _wait(lambda: probe.status_value('ready') == 'yes' and probe.latest_status(),
+                   what='the kernels loaded')
+    starting = [s for s in probe.diagnostics if s.level == DiagnosticStatus.WARN]
+    assert all(s.message == 'starting: loading the compiled kernels (nothing received yet)'
+               for s in starting)
     assert status.level == DiagnosticStatus.STALE
     assert status.message == 'no scan or trajectory received yet'
     response = probe.call(probe.check)
