@@ -64,6 +64,7 @@ class Probe:
     """A test-side node: publishes inputs, records the node's outputs."""
 
     def __init__(self, context: Context) -> None:
+        self.context = context
         self.node = Node('probe', context=context)
         self.scan = self.node.create_publisher(LaserScan, 'scan', 100)
         self.trajectory = self.node.create_publisher(Path, 'trajectory', 10)
@@ -464,27 +465,36 @@ def test_check_service_recomputes_everything(misaligned):
     assert probe.consistent[-1] is False
 
 
-def test_a_late_subscriber_gets_the_latched_verdict(misaligned):
-    probe = misaligned
-    late: list[bool] = []
-    subscription = probe.node.create_subscription(
-        Bool, '/map_consistency/consistent', lambda m: late.append(m.data), LATCHED)
+@contextmanager
+def _late_subscriber(probe: Probe, message_type, topic: str, callback, qos) -> Iterator[None]:
+    """A subscriber that joins now, on a node and executor of its own: destroying a
+    subscription of the probe's node while its executor spins can kill that executor."""
+    node = Node('late_subscriber', context=probe.context)
+    node.create_subscription(message_type, topic, callback, qos)
+    executor = SingleThreadedExecutor(context=probe.context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
     try:
+        yield
+    finally:
+        executor.shutdown()
+        spinner.join(timeout=5)
+        node.destroy_node()
+
+
+def test_a_late_subscriber_gets_the_latched_verdict(misaligned):
+    late: list[bool] = []
+    with _late_subscriber(misaligned, Bool, '/map_consistency/consistent',
+                          lambda m: late.append(m.data), LATCHED):
         _wait(lambda: late, what='the transient-local verdict')
         assert late[-1] is False
-    finally:
-        probe.node.destroy_subscription(subscription)
 
 
 def test_a_late_marker_subscriber_gets_every_marker(mapped):
-    probe = mapped
     late: list[MarkerArray] = []
-    subscription = probe.node.create_subscription(
-        MarkerArray, '/map_consistency/markers', late.append, 10)
-    try:
+    with _late_subscriber(mapped, MarkerArray, '/map_consistency/markers', late.append, 10):
         _wait(lambda: len(_keyframe_markers(late)) == SCANS, what='the whole marker array')
-    finally:
-        probe.node.destroy_subscription(subscription)
 
 
 def test_retune_without_a_graph_fails_clearly(mapped):
