@@ -179,6 +179,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             time.sleep(0.05)
         start = time.monotonic()
         startup = start - launched
+        ready = observer.status.get('ready') == 'yes'
         for k in range(count):
             due = start + k / rate
             delay = due - time.monotonic()
@@ -226,7 +227,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     keyframes = reports[-1]['keyframes'] if reports else 0
     print(f'\n{name}: {count} scans at {rate:g} scans/s (streamed in {streamed:.1f} s), '
           f'a Path every {path_every} scans, executor {executor}')
-    print(f'  node start-up (launch -> ready)      {startup:.2f} s')
+    print(f'  node start-up (launch -> ready)      {startup:.2f} s'
+          + ('' if ready else ' (NOT READY: streamed after the 120 s deadline)'))
     print(f'  keyframes registered / scans sent   {keyframes} / {count}')
     print(f'  reported lost                        lost scans {status.get("lost scans")}, '
           f'poses without scan {status.get("poses without scan")}, '

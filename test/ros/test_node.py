@@ -172,24 +172,33 @@ def _ros_variables(env: dict[str, str]) -> Iterator[None]:
 
 
 @contextmanager
+def _spinning(node: Node, context: Context) -> Iterator[None]:
+    """`node` served by an executor of its own on a thread; destroyed on exit."""
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        yield
+    finally:
+        executor.shutdown()
+        spinner.join(timeout=5)
+        node.destroy_node()
+
+
+@contextmanager
 def _probe_of(env: dict[str, str]) -> Iterator[Probe]:
     with _ros_variables(env):
         context = Context()
         rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']))
         probe = Probe(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe.node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
     try:
-        _wait(lambda: probe.trajectory.get_subscription_count() > 0
-              and probe.scan.get_subscription_count() > 0, what='the node to subscribe')
-        yield probe
+        with _spinning(probe.node, context):
+            _wait(lambda: probe.trajectory.get_subscription_count() > 0
+                  and probe.scan.get_subscription_count() > 0, what='the node to subscribe')
+            yield probe
     finally:
-        executor.shutdown()
-        probe.node.destroy_node()
         rclpy.shutdown(context=context)
-        spinner.join(timeout=5)
 
 
 @pytest.fixture(scope='module')
@@ -214,8 +223,7 @@ def idle_probe(tmp_path):
 
 def _reset(probe: Probe) -> None:
     """The node back to an empty map; later arrays and verdicts are the new session's."""
-    resets = int(probe.status_value('resets') or _wait(
-        lambda: probe.status_value('resets'), what='a status with the reset count'))
+    resets = int(_wait(lambda: probe.status_value('resets'), what='a status with the resets'))
     assert probe.call(probe.reset).success
     _wait(lambda: probe.status_value('scans') == '0'
           and int(probe.status_value('resets')) > resets, what='the reset in the diagnostics')
@@ -471,16 +479,8 @@ def _late_subscriber(probe: Probe, message_type, topic: str, callback, qos) -> I
     subscription of the probe's node while its executor spins can kill that executor."""
     node = Node('late_subscriber', context=probe.context)
     node.create_subscription(message_type, topic, callback, qos)
-    executor = SingleThreadedExecutor(context=probe.context)
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
+    with _spinning(node, probe.context):
         yield
-    finally:
-        executor.shutdown()
-        spinner.join(timeout=5)
-        node.destroy_node()
 
 
 def test_a_late_subscriber_gets_the_latched_verdict(misaligned):
