@@ -37,6 +37,7 @@ class MonitorHealth:
     misaligned_regions: int = 0
     changed_places: int = 0
     starting: bool = False  # the compiled kernels are still loading; inputs queue meanwhile
+    start_failure: str = ''  # why the kernels failed to load: nothing is monitored
 
     @property
     def loss(self) -> str:
@@ -50,9 +51,13 @@ class MonitorHealth:
 
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
-    """(level, message): WARN while the node starts, STALE without recent input, ERROR for an
-    inconsistent map, WARN for no verdict yet, lost input or a recent bad message, OK
-    otherwise."""
+    """(level, message): ERROR when the node could not start, WARN while it starts, STALE
+    without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input
+    or a recent bad message, OK otherwise."""
+    if health.start_failure:
+        return DiagnosticStatus.ERROR, (f'not monitoring: loading the compiled kernels failed '
+                                        f'({health.start_failure}); {health.queued_scans} '
+                                        'scans queued unprocessed')
     if health.starting:
         received = ('nothing received yet' if health.seconds_since_input is None
                     else f'{health.queued_scans} scans queued')
@@ -82,7 +87,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
     """The DiagnosticStatus of the map with the design's key-values."""
     level, message = status_level(health)
     values = {
-        'ready': 'no' if health.starting else 'yes',
+        'ready': 'failed' if health.start_failure else ('no' if health.starting else 'yes'),
         'scans': str(health.keyframes),
         'buffered scans': str(health.buffered_scans),
         'overlapping pairs': str(health.overlapping_pairs),

@@ -91,6 +91,10 @@ def _ros_default(spec: ParameterSpec):
     return list(spec.default) if spec.kind is tuple else spec.default
 
 
+class NotMonitoring(Exception):
+    """The worker could not start (its compiled kernels failed to load)."""
+
+
 class ShuttingDown(Exception):
     """A service gave up waiting because the node is shutting down."""
 
@@ -126,6 +130,7 @@ class MapConsistencyNode(Node):
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._ready = threading.Event()  # set once the worker has loaded the kernels
+        self._start_failure = ''  # why loading the kernels failed: the worker never ran
         # queued records with their arrival (time.monotonic), for the update latency
         self._scans: deque[tuple[float, Scan]] = deque()
         # single poses and graph snapshots, in arrival order: the slam_toolbox bridge's
@@ -327,7 +332,13 @@ class MapConsistencyNode(Node):
 
     def _work(self) -> None:
         # records queue meanwhile: the first update then finds the kernels loaded
-        warm_up()
+        try:
+            warm_up()
+        except Exception as error:  # noqa: BLE001 - the node stays up to say why it cannot work
+            self._start_failure = f'{type(error).__name__}: {error}'
+            self.get_logger().error('not monitoring: loading the compiled kernels failed '
+                                    f'({self._start_failure})')
+            return
         self._ready.set()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)
@@ -409,9 +420,12 @@ class MapConsistencyNode(Node):
         return future
 
     def _wait(self, future: Future, timeout: float):
-        """The future's result; ShuttingDown when the node stops first, TimeoutError."""
+        """The future's result; ShuttingDown when the node stops first, NotMonitoring when
+        the worker could not start, TimeoutError."""
         deadline = time.monotonic() + timeout
         while not self._stop.is_set():
+            if self._start_failure:
+                raise NotMonitoring(self._start_failure)
             try:
                 return future.result(timeout=min(0.05, max(deadline - time.monotonic(), 0.0)))
             except FutureTimeout:
@@ -575,7 +589,8 @@ class MapConsistencyNode(Node):
             stale_timeout=stale_timeout, queued_scans=queued,
             lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
             poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
-            last_reset=feed.last_reset, starting=not self._ready.is_set())
+            last_reset=feed.last_reset, starting=not self._ready.is_set(),
+            start_failure=self._start_failure)
 
     def _publish_diagnostics(self) -> None:
         status = map_status(self._health(), self.get_fully_qualified_name())
@@ -595,6 +610,9 @@ class MapConsistencyNode(Node):
             response.success, response.message = False, 'timed out waiting for the monitor'
         except ShuttingDown:
             response.success, response.message = False, _SHUTTING_DOWN
+        except NotMonitoring as failure:
+            response.success, response.message = False, (
+                f'not monitoring: loading the compiled kernels failed ({failure})')
         finally:
             with self._lock:
                 self._calls -= 1

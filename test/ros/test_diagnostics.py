@@ -38,6 +38,10 @@ BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
      'starting: loading the compiled kernels (nothing received yet)'),
     ({'starting': True, 'queued_scans': 40, 'consistent': None}, DiagnosticStatus.WARN,
      'starting: loading the compiled kernels (40 scans queued)'),
+    ({'starting': True, 'start_failure': 'OSError: cache unreadable', 'queued_scans': 7,
+      'consistent': None}, DiagnosticStatus.ERROR,
+     'not monitoring: loading the compiled kernels failed (OSError: cache unreadable); '
+     '7 scans queued unprocessed'),
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
@@ -56,6 +60,9 @@ def test_key_values_carry_the_figures():
     assert values['ready'] == 'yes'
     assert {kv.key: kv.value for kv in map_status(
         dataclasses.replace(HEALTHY, starting=True), '/mc').values}['ready'] == 'no'
+    assert {kv.key: kv.value for kv in map_status(
+        dataclasses.replace(HEALTHY, starting=True, start_failure='boom'),
+        '/mc').values}['ready'] == 'failed'
     assert values['phi'] == '0.125000'
     assert values['input problems'] == '2' and values['last input problem'] == 'none'
     unknown = {kv.key: kv.value for kv in map_status(

@@ -186,6 +186,64 @@ def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, sha
     assert seconds < 10.0, output  # bench/bench_node_load.py measures it
 
 
+# the node's own entry point, with kernels that fail to load (a broken numba cache or
+# compiler, say); nothing else differs
+_FAILING_WARM_UP = """
+import sys
+from map_consistency_ros.ros import node
+def broken():
+    raise OSError('kernel cache unreadable')
+node.warm_up = broken
+sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2']))
+"""
+
+
+def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, shared_data):
+    """The node stays up and says why it monitors nothing; services fail at once."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    process = subprocess.Popen([sys.executable, '-c', _FAILING_WARM_UP], cwd=REPO, env=ros_env,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    client = Client()
+    statuses: list = []
+    try:
+        node = client.node
+        node.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda m: statuses.extend(m.status), 10)
+        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
+        check = node.create_client(Trigger, '/map_consistency/check')
+        assert check.wait_for_service(timeout_sec=TIMEOUT)
+        for index in range(3):
+            scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
+                                               log.ranges[index], sensor_model(log)))
+        deadline = time.monotonic() + TIMEOUT
+        while time.monotonic() < deadline and not (
+                statuses and statuses[-1].message.endswith('; 3 scans queued unprocessed')):
+            time.sleep(0.05)
+        status = statuses[-1]
+        assert status.level == DiagnosticStatus.ERROR
+        assert status.message == ('not monitoring: loading the compiled kernels failed '
+                                  '(OSError: kernel cache unreadable); 3 scans queued '
+                                  'unprocessed'), status.message
+        assert {kv.key: kv.value for kv in status.values}['ready'] == 'failed'
+        start = time.monotonic()
+        answer = check.call_async(Trigger.Request())
+        while not answer.done() and time.monotonic() - start < TIMEOUT:
+            time.sleep(0.02)
+        assert answer.result().success is False
+        assert answer.result().message == ('not monitoring: loading the compiled kernels '
+                                           'failed (OSError: kernel cache unreadable)')
+        assert time.monotonic() - start < 5.0  # not the 60 s service timeout
+        _, output = _stop(process)
+        assert process.returncode == 0
+        assert 'not monitoring: loading the compiled kernels failed' in output
+        assert 'Traceback' not in output
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
+
+
 def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
     """With use_sim_time, a paused bag (a /clock that stops) is not stale input."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
