@@ -3,6 +3,7 @@
     .venv/bin/python bench/bench_node_load.py [--logs intel fr079] [--rates 100 400]
                                               [--path-every 10] [--scans N] [--no-reference]
                                               [--executors events multi_threaded]
+                                              [-p NAME:=VALUE ...]
 
 For each log and rate a fresh node process (defaults of config/map_consistency.yaml) gets the
 log's scans at the rate and, every `--path-every` scans, the growing keyframe Path of the
@@ -134,7 +135,7 @@ def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
 
 
 def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
-        executor: str) -> None:
+        executor: str, parameters: list[str]) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
@@ -159,7 +160,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     launched = time.monotonic()
     node = subprocess.Popen([sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
                              '--params-file', str(REPO / 'config' / 'map_consistency.yaml'),
-                             '-p', f'executor:={executor}'],
+                             '-p', f'executor:={executor}',
+                             *(word for value in parameters for word in ('-p', value))],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     os.environ.update(env)
     observer = Observer()
@@ -226,7 +228,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             node.kill()
     keyframes = reports[-1]['keyframes'] if reports else 0
     print(f'\n{name}: {count} scans at {rate:g} scans/s (streamed in {streamed:.1f} s), '
-          f'a Path every {path_every} scans, executor {executor}')
+          f'a Path every {path_every} scans, executor {executor}'
+          + ''.join(f', {value}' for value in parameters))
     print(f'  node start-up (launch -> ready)      {startup:.2f} s'
           + ('' if ready else ' (NOT READY: streamed after the 120 s deadline)'))
     print(f'  keyframes registered / scans sent   {keyframes} / {count}')
@@ -296,12 +299,16 @@ def main() -> None:
     parser.add_argument('--executors', nargs='+', default=['events'],
                         choices=['events', 'multi_threaded'],
                         help="the node's executor parameter; several: side by side")
+    parser.add_argument('-p', '--parameter', action='append', default=[], metavar='NAME:=VALUE',
+                        help='a node parameter over the YAML defaults, e.g. '
+                             'explanation_period:=3600 for the first stage alone (repeatable)')
     args = parser.parse_args()
     os.environ.setdefault('ROS_LOG_DIR', '/tmp/bench_node_load_logs')
     for name in args.logs:
         for rate in args.rates:
             for executor in args.executors:
-                run(name, rate, args.path_every, args.scans, not args.no_reference, executor)
+                run(name, rate, args.path_every, args.scans, not args.no_reference, executor,
+                    args.parameter)
 
 
 if __name__ == '__main__':

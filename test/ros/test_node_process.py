@@ -14,6 +14,7 @@ import threading
 import time
 from pathlib import Path as FilePath
 
+import numba
 import numpy as np
 import pytest
 import rclpy
@@ -124,6 +125,26 @@ def _thread_niceness(pid: int) -> list[int]:
         fields = stat.read_text().rsplit(')', 1)[1].split()  # after the thread's name
         values.append(int(fields[16]))
     return values
+
+
+def test_the_second_stage_thread_yields_its_priority_and_the_cores():
+    """_yield_to_updates lowers only its own thread: the worker keeps its priority and every
+    core for its kernels."""
+    from map_consistency_ros.ros.node import (EXPLAINER_NICENESS, EXPLAINER_THREADS,
+                                              _yield_to_updates)
+    seen = {}
+
+    def explainer() -> None:
+        _yield_to_updates()
+        seen['threads'] = numba.get_num_threads()
+        seen['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    before = (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0))
+    thread = threading.Thread(target=explainer)
+    thread.start()
+    thread.join()
+    assert seen == {'threads': EXPLAINER_THREADS, 'nice': EXPLAINER_NICENESS}
+    assert (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0)) == before
 
 
 def test_sigint_when_idle_ends_cleanly(ros_env):
