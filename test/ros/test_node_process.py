@@ -111,6 +111,14 @@ class Client:
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
 
+    def statuses(self) -> list:
+        """Every DiagnosticStatus on /diagnostics from now on (a list that grows)."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        received: list = []
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      lambda msg: received.extend(msg.status), 10)
+        return received
+
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
@@ -221,16 +229,13 @@ sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=
 
 def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, shared_data):
     """The node stays up and says why it monitors nothing; services fail at once."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from diagnostic_msgs.msg import DiagnosticStatus
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     process = subprocess.Popen([sys.executable, '-c', _FAILING_WARM_UP], cwd=REPO, env=ros_env,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     client = Client()
-    statuses: list = []
     try:
-        node = client.node
-        node.create_subscription(DiagnosticArray, '/diagnostics',
-                                 lambda m: statuses.extend(m.status), 10)
+        node, statuses = client.node, client.statuses()
         scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
         check = node.create_client(Trigger, '/map_consistency/check')
         assert check.wait_for_service(timeout_sec=TIMEOUT)
@@ -267,17 +272,14 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
 
 def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
     """With use_sim_time, a paused bag (a /clock that stops) is not stale input."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from diagnostic_msgs.msg import DiagnosticStatus
     from rosgraph_msgs.msg import Clock
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     process = _node(ros_env, '-p', 'use_sim_time:=true', '-p', 'stale_timeout:=1.0',
                     '-p', 'diagnostics_period:=0.2')
     client = Client()
-    statuses: list = []
     try:
-        node = client.node
-        node.create_subscription(DiagnosticArray, '/diagnostics',
-                                 lambda m: statuses.extend(m.status), 10)
+        node, statuses = client.node, client.statuses()
         clock = node.create_publisher(Clock, '/clock', 10)
         scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
         deadline = time.monotonic() + TIMEOUT
