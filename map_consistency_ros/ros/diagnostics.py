@@ -50,14 +50,18 @@ class MonitorHealth:
         return ', '.join(parts)
 
 
+def not_monitoring(failure: str) -> str:
+    """What the node says (log, diagnostics, services) when its kernels failed to load."""
+    return f'not monitoring: loading the compiled kernels failed ({failure})'
+
+
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     """(level, message): ERROR when the node could not start, WARN while it starts, STALE
     without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input
     or a recent bad message, OK otherwise."""
     if health.start_failure:
-        return DiagnosticStatus.ERROR, (f'not monitoring: loading the compiled kernels failed '
-                                        f'({health.start_failure}); {health.queued_scans} '
-                                        'scans queued unprocessed')
+        return DiagnosticStatus.ERROR, (f'{not_monitoring(health.start_failure)}; '
+                                        f'{health.queued_scans} scans queued unprocessed')
     if health.starting:
         received = ('nothing received yet' if health.seconds_since_input is None
                     else f'{health.queued_scans} scans queued')

@@ -57,7 +57,7 @@ from map_consistency_ros.core.records import (Constraints, GraphSnapshot, Keyfra
 from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
-from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
+from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, not_monitoring
 from map_consistency_ros.ros.markers import MarkerUpdates
 from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
@@ -78,8 +78,9 @@ _FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 # as long as it likes, an update's latency is what the node promises.
 EXPLAINER_NICENESS = 19
 # The second stage's compiled kernels run on its own thread only. Niceness alone did not keep
-# it off the updates: with both cores, a Freiburg 079 stream at 100 scans/s had update latency
-# median 169-190 ms and p99 1.1-1.6 s; with one, 94-114 ms and 0.33-0.48 s (bench_node_load).
+# it off the updates: the first 2,500 scans of Freiburg 079 streamed at 100 scans/s had update
+# latency median 169-190 ms and p99 1.1-1.6 s with both cores, 94-114 ms and 0.33-0.48 s with
+# one (bench_node_load, interleaved runs on a slow machine; docs/node.md).
 EXPLAINER_THREADS = 1
 _SHUTDOWN_ANSWER_SECONDS = 0.2  # spinning after a stop request, for pending answers to go out
 _SHUTTING_DOWN = 'the node is shutting down'
@@ -341,8 +342,7 @@ class MapConsistencyNode(Node):
             warm_up()
         except Exception as error:  # noqa: BLE001 - the node stays up to say why it cannot work
             self._start_failure = f'{type(error).__name__}: {error}'
-            self.get_logger().error('not monitoring: loading the compiled kernels failed '
-                                    f'({self._start_failure})')
+            self.get_logger().error(not_monitoring(self._start_failure))
             return
         self._ready.set()
         while not self._stop.is_set():
@@ -616,8 +616,7 @@ class MapConsistencyNode(Node):
         except ShuttingDown:
             response.success, response.message = False, _SHUTTING_DOWN
         except NotMonitoring as failure:
-            response.success, response.message = False, (
-                f'not monitoring: loading the compiled kernels failed ({failure})')
+            response.success, response.message = False, not_monitoring(str(failure))
         finally:
             with self._lock:
                 self._calls -= 1
