@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path as FilePath
 
 import numba
@@ -77,6 +78,17 @@ def _wait_for_line(process: subprocess.Popen, words: str) -> list[str]:
         if words in line:
             return lines
     raise AssertionError(f'no line with {words!r} in {lines}')
+
+
+def _until(condition: Callable[[], object], seconds: float = TIMEOUT,
+           step: Callable[[], None] | None = None) -> None:
+    """Poll `condition` until it holds or `seconds` pass, calling `step` between polls; the
+    caller asserts what it expects afterwards."""
+    deadline = time.monotonic() + seconds
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.05)
+        if step is not None:
+            step()
 
 
 def _stop(process: subprocess.Popen) -> tuple[float, str]:
@@ -203,9 +215,7 @@ def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, sha
         time.sleep(1.0)  # into the search
         assert not future.done(), f'the retune ended before the signal: {future.result()}'
         seconds, output = _stop(process)
-        deadline = time.monotonic() + 5.0
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _until(future.done, 5.0)
         assert future.done(), 'the pending retune was never answered'
         response = future.result()
     finally:
@@ -242,10 +252,8 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
         for index in range(3):
             scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
                                                log.ranges[index], sensor_model(log)))
-        deadline = time.monotonic() + TIMEOUT
-        while time.monotonic() < deadline and not (
-                statuses and statuses[-1].message.endswith('; 3 scans queued unprocessed')):
-            time.sleep(0.05)
+        _until(lambda: statuses
+               and statuses[-1].message.endswith('; 3 scans queued unprocessed'))
         status = statuses[-1]
         assert status.level == DiagnosticStatus.ERROR
         assert status.message == ('not monitoring: loading the compiled kernels failed '
@@ -254,8 +262,8 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
         assert {kv.key: kv.value for kv in status.values}['ready'] == 'failed'
         start = time.monotonic()
         answer = check.call_async(Trigger.Request())
-        while not answer.done() and time.monotonic() - start < TIMEOUT:
-            time.sleep(0.02)
+        _until(answer.done)
+        assert answer.done(), 'the check was never answered'
         assert answer.result().success is False
         assert answer.result().message == ('not monitoring: loading the compiled kernels '
                                            'failed (OSError: kernel cache unreadable)')
@@ -282,9 +290,7 @@ def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
         node, statuses = client.node, client.statuses()
         clock = node.create_publisher(Clock, '/clock', 10)
         scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
-        deadline = time.monotonic() + TIMEOUT
-        while not statuses and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _until(lambda: statuses)
 
         def tick(seconds: float) -> None:
             clock.publish(Clock(clock=messages.time_message(message_class, seconds)))
@@ -297,10 +303,8 @@ def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
         time.sleep(2.5)  # wall time passes, the bag is paused
         assert statuses[-1].level != DiagnosticStatus.STALE, statuses[-1].message
         tick(103.0)  # the bag plays on without input
-        deadline = time.monotonic() + TIMEOUT
-        while statuses[-1].level != DiagnosticStatus.STALE and time.monotonic() < deadline:
-            time.sleep(0.05)
-            tick(103.0)
+        _until(lambda: statuses[-1].level == DiagnosticStatus.STALE,
+               step=lambda: tick(103.0))
         assert statuses[-1].message == 'no input for 3.0 s (stale after 1 s)'
         _stop(process)
     finally:
