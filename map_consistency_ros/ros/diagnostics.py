@@ -38,6 +38,7 @@ class MonitorHealth:
     changed_places: int = 0
     starting: bool = False  # the compiled kernels are still loading; inputs queue meanwhile
     start_failure: str = ''  # why the kernels failed to load: nothing is monitored
+    explanation_failure: str = ''  # why the last explanation failed ('' after a success): the verdict is older
 
     @property
     def loss(self) -> str:
@@ -57,8 +58,8 @@ def not_monitoring(failure: str) -> str:
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     """(level, message): ERROR when the node could not start, WARN while it starts, STALE
-    without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input
-    or a recent bad message, OK otherwise."""
+    without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input,
+    a failed second stage or a recent bad message, OK otherwise."""
     if health.start_failure:
         return DiagnosticStatus.ERROR, (f'{not_monitoring(health.start_failure)}; '
                                         f'{health.queued_scans} scans queued unprocessed')
@@ -71,13 +72,18 @@ def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     if health.seconds_since_input > health.stale_timeout:
         return DiagnosticStatus.STALE, (f'no input for {health.seconds_since_input:.1f} s '
                                         f'(stale after {health.stale_timeout:g} s)')
-    loss = f'; {health.loss}' if health.loss else ''
+    problems = f'; {health.loss}' if health.loss else ''
+    if health.explanation_failure:
+        problems += f'; {health.explanation_failure}'
     if health.consistent is False:
-        return DiagnosticStatus.ERROR, f'map {health.verdict}{loss}'
+        return DiagnosticStatus.ERROR, f'map {health.verdict}{problems}'
     if health.consistent is None:
-        return DiagnosticStatus.WARN, f'no keyframe yet: no trajectory pose matches a scan{loss}'
-    if loss:
-        return DiagnosticStatus.WARN, f'map {health.verdict} ({health.keyframes} scans){loss}'
+        if health.keyframes:  # the first explanation runs, or failed
+            return DiagnosticStatus.WARN, f'no verdict yet ({health.keyframes} scans){problems}'
+        return DiagnosticStatus.WARN, (f'no keyframe yet: no trajectory pose matches a '
+                                       f'scan{problems}')
+    if problems:
+        return DiagnosticStatus.WARN, f'map {health.verdict} ({health.keyframes} scans){problems}'
     if health.recent_problem:
         return DiagnosticStatus.WARN, f'map {health.verdict}; bad input: {health.recent_problem}'
     return DiagnosticStatus.OK, f'map {health.verdict} ({health.keyframes} scans)'
@@ -113,6 +119,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'poses without scan': str(health.poses_without_scan),
         'resets': str(health.resets),
         'last reset': health.last_reset or 'none',
+        'second stage failure': health.explanation_failure or 'none',
     }
     return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
                             hardware_id=hardware_id,

@@ -105,6 +105,10 @@ class ShuttingDown(Exception):
     """A service gave up waiting because the node is shutting down."""
 
 
+class ExplanationFailed(Exception):
+    """The second stage raised: logged and shown in diagnostics, tried again a period later."""
+
+
 class MapConsistencyNode(Node):
     """The `map_consistency` node (see docs/node.md for its contract)."""
 
@@ -127,6 +131,7 @@ class MapConsistencyNode(Node):
         self._verdict_content: tuple[object, dict] = (None, {})  # (verdict, its report part)
         self._explained_at = -math.inf
         self._explaining = threading.Lock()  # one explanation at a time (the cache is shared)
+        self._explanation_failure = ''  # why the last explanation failed, '' after a success
         # the worker and the explainer both publish (reentrant: a reset takes a snapshot)
         self._publishing = threading.RLock()
         self._explain_wake = threading.Event()
@@ -387,7 +392,10 @@ class MapConsistencyNode(Node):
             self._timing = {'queued_s': max(taken - changed_at, 0.0),
                             'monitor_s': applied_seconds,
                             'snapshot_s': time.perf_counter() - start}
-            self._publish_verdict(changed_at)
+            try:
+                self._publish_verdict(changed_at)
+            except ExplanationFailed:
+                pass  # no verdict yet: diagnostics say why, the explainer tries again
         if self._verdict_behind():
             self._explain_wake.set()
 
@@ -457,10 +465,18 @@ class MapConsistencyNode(Node):
         at a time: `cache` is shared)."""
         with self._explaining:
             start = time.perf_counter()
-            scans = snapshot.scans()
-            assessment = explain(scans, snapshot.result, self._explanation, cache=cache)
+            try:
+                scans = snapshot.scans()
+                assessment = explain(scans, snapshot.result, self._explanation, cache=cache)
+            except Exception as error:  # noqa: BLE001 - any bug: the node says so and goes on
+                self._explanation_failure = (f'explanation failed: {type(error).__name__}: '
+                                             f'{error}')
+                self.get_logger().error(self._explanation_failure)
+                raise ExplanationFailed(self._explanation_failure) from error
+            finally:
+                self._explained_at = time.monotonic()  # a failure too: no retry in a tight loop
             seconds = time.perf_counter() - start
-        self._explained_at = time.monotonic()
+        self._explanation_failure = ''
         return (assessment, snapshot, scans), seconds
 
     def _explain_loop(self) -> None:
@@ -485,6 +501,8 @@ class MapConsistencyNode(Node):
                         self._verdict, self._verdict_serial = verdict, serial
                         self._timing['explanation_s'] = seconds
                         self._publish_outputs(None)
+            except ExplanationFailed:
+                pass  # logged and shown in diagnostics; the next period tries again
             except Exception as error:  # noqa: BLE001 - the explainer must outlive any bug
                 self.get_logger().error(f'explanation failed: {error!r}')
 
@@ -498,7 +516,11 @@ class MapConsistencyNode(Node):
             return
         if explain_now or self._verdict is None:
             serial = self._serial
-            verdict, seconds = self._explain(snapshot, self._registrations)
+            try:
+                verdict, seconds = self._explain(snapshot, self._registrations)
+            except ExplanationFailed:
+                self._publish_diagnostics()  # no verdict to publish, or not the one asked for
+                raise
             with self._publishing:
                 self._verdict, self._verdict_serial = verdict, serial
                 self._timing['explanation_s'] = seconds
@@ -595,7 +617,7 @@ class MapConsistencyNode(Node):
             lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
             poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
             last_reset=feed.last_reset, starting=not self._ready.is_set(),
-            start_failure=self._start_failure)
+            start_failure=self._start_failure, explanation_failure=self._explanation_failure)
 
     def _publish_diagnostics(self) -> None:
         status = map_status(self._health(), self.get_fully_qualified_name())
@@ -630,7 +652,10 @@ class MapConsistencyNode(Node):
         if result is None:
             return False, 'no keyframes yet: no trajectory pose matches a scan'
         self._timing = {'monitor_s': summary.elapsed}
-        self._publish_verdict(time.monotonic() - summary.elapsed, explain_now=True)
+        try:
+            self._publish_verdict(time.monotonic() - summary.elapsed, explain_now=True)
+        except ExplanationFailed as error:
+            return False, f'no verdict: {error}'
         assessment = self._verdict[0]
         return True, (f'{assessment.summary_line()}; the paper\'s test: '
                       f'{int(result.inconsistent.sum())} of {result.scan_count} scans fail, '

@@ -42,6 +42,13 @@ BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
       'consistent': None}, DiagnosticStatus.ERROR,
      'not monitoring: loading the compiled kernels failed (OSError: cache unreadable); '
      '7 scans queued unprocessed'),
+    ({'consistent': None}, DiagnosticStatus.WARN, 'no verdict yet (120 scans)'),
+    ({'explanation_failure': 'explanation failed: MemoryError: '},
+     DiagnosticStatus.WARN, 'objects) (120 scans); explanation failed: MemoryError'),
+    ({'consistent': None, 'explanation_failure': 'explanation failed: MemoryError: '},
+     DiagnosticStatus.WARN, 'no verdict yet (120 scans); explanation failed: MemoryError'),
+    ({**BROKEN, 'explanation_failure': 'explanation failed: ValueError: x'},
+     DiagnosticStatus.ERROR, 'objects); explanation failed: ValueError: x'),
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
@@ -58,6 +65,7 @@ def test_key_values_carry_the_figures():
     assert values['misaligned regions'] == '0' and values['changed places'] == '2'
     assert values['update latency (ms)'] == '4.2'
     assert values['ready'] == 'yes'
+    assert values['second stage failure'] == 'none'
     assert {kv.key: kv.value for kv in map_status(
         dataclasses.replace(HEALTHY, starting=True), '/mc').values}['ready'] == 'no'
     assert {kv.key: kv.value for kv in map_status(

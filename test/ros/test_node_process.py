@@ -42,10 +42,14 @@ def ros_env(tmp_path, monkeypatch):
     return dict(os.environ)
 
 
+def _python(ros_env, *arguments: str) -> subprocess.Popen:
+    """A Python process in the repository, its output merged and piped."""
+    return subprocess.Popen([sys.executable, *arguments], cwd=REPO, env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
 def _node(ros_env, *arguments: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
-                             *arguments], cwd=REPO, env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+    return _python(ros_env, '-m', 'map_consistency_ros.ros.node', '--ros-args', *arguments)
 
 
 def _params(tmp_path, text: str) -> str:
@@ -241,8 +245,7 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
     """The node stays up and says why it monitors nothing; services fail at once."""
     from diagnostic_msgs.msg import DiagnosticStatus
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
-    process = subprocess.Popen([sys.executable, '-c', _FAILING_WARM_UP], cwd=REPO, env=ros_env,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = _python(ros_env, '-c', _FAILING_WARM_UP)
     client = Client()
     try:
         node, statuses = client.node, client.statuses()
@@ -272,6 +275,68 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
         assert process.returncode == 0
         assert 'not monitoring: loading the compiled kernels failed' in output
         assert 'Traceback' not in output
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
+
+
+# the node's own entry point, with a second stage whose first and third explanations run out
+# of memory
+_FAILING_TWICE = """
+import sys
+from map_consistency_ros.ros import node
+real, calls = node.explain, []
+def explain(*args, **kwargs):
+    calls.append(1)
+    if len(calls) in (1, 3):
+        raise MemoryError('injected')
+    return real(*args, **kwargs)
+node.explain = explain
+sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
+                    '-p', 'stale_timeout:=60.0']))
+"""
+
+
+def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shared_data):
+    """The node says it has no verdict and why, logs it once, and tries again a period later
+    (it used to say 'no keyframe yet' and publish nothing); ~/check says it failed."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from nav_msgs.msg import Path
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
+    process = _python(ros_env, '-c', _FAILING_TWICE)
+    client = Client()
+    try:
+        node, statuses = client.node, client.statuses()
+        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
+        trajectory = node.create_publisher(Path, 'trajectory', 10)
+        _until(lambda: statuses)
+        for index in range(SCANS):
+            scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
+                                               log.ranges[index], model))
+            time.sleep(0.004)
+        trajectory.publish(messages.path_message(message_class, log.timestamps[:SCANS],
+                                                 log.laser_poses[:SCANS], 'map'))
+        failed = f'no verdict yet ({SCANS} scans); explanation failed: MemoryError: injected'
+        _until(lambda: statuses[-1].message == failed)
+        assert statuses[-1].message == failed and statuses[-1].level == DiagnosticStatus.WARN
+        values = {kv.key: kv.value for kv in statuses[-1].values}
+        assert values['second stage failure'] == 'explanation failed: MemoryError: injected'
+        _until(lambda: statuses[-1].message.startswith('map '))
+        assert statuses[-1].message.startswith('map CONSISTENT'), statuses[-1].message
+        assert statuses[-1].level == DiagnosticStatus.OK
+        assert {kv.key: kv.value for kv in statuses[-1].values}['second stage failure'] == 'none'
+        check = node.create_client(Trigger, '/map_consistency/check')
+        assert check.wait_for_service(timeout_sec=TIMEOUT)
+        answer = check.call_async(Trigger.Request())
+        _until(answer.done)
+        assert answer.done(), 'the check was never answered'
+        assert answer.result().success is False
+        assert answer.result().message == 'no verdict: explanation failed: MemoryError: injected'
+        _, output = _stop(process)
+        assert process.returncode == 0 and 'Traceback' not in output
+        assert output.count('explanation failed: MemoryError: injected') == 2, output
     finally:
         client.close()
         if process.poll() is None:
