@@ -7,7 +7,10 @@
 2. Loop closure: the trajectory's last 10 %, 50 % and 100 % of poses move rigidly; the update
    time is set beside a full recompute of the same monitor (`recompute`) and the batch test
    (`check_consistency`) on the same scans, in the same run.
-3. Memory: resident set size along the stream, and a stream of scans that never get a pose
+3. The test's statistics of the streaming updates (in `snapshot`, from the last result while
+   the map only grows) beside testing every pair of the same measures again (every 10th
+   keyframe, in the same run), per quarter of the stream, and whether both agree exactly.
+4. Memory: resident set size along the stream, and a stream of scans that never get a pose
    (the buffer must stay at its bound).
 """
 from __future__ import annotations
@@ -20,7 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.consistency import (ConsistencyResult, check_consistency,
+                                                  evaluate_pairs)
+from map_consistency_ros.core.measure import PairMeasures
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -38,20 +43,41 @@ def rss_mib() -> float:
 
 
 def stream(stamps, ranges, poses, model) -> tuple[ConsistencyMonitor, np.ndarray, list]:
-    """Feed the log scan by scan; (monitor, (N, 2) wall and CPU seconds per keyframe, RSS)."""
+    """Feed the log scan by scan; (monitor, (N, 4) wall and CPU seconds per keyframe, the
+    snapshot's and (every 10th keyframe, else NaN) a test of every pair, RSS)."""
     monitor = ConsistencyMonitor()
-    times = np.empty((len(stamps), 2))
+    times = np.full((len(stamps), 4), np.nan)
     memory = []
     checkpoints = {int(len(stamps) * f) - 1 for f in (0.25, 0.5, 0.75, 1.0)}
     for index in range(len(stamps)):
         start, cpu = time.perf_counter(), time.process_time()
         monitor.add_scan(stamps[index], ranges[index], model)
         monitor.update_trajectory(stamps[:index + 1], poses[:index + 1])
-        monitor.snapshot()  # the test's statistics run here
-        times[index] = time.perf_counter() - start, time.process_time() - cpu
+        tested = time.perf_counter()
+        result = monitor.snapshot().result  # the test's statistics run here
+        times[index, :3] = (time.perf_counter() - start, time.process_time() - cpu,
+                            time.perf_counter() - tested)
+        if index % 10 == 9 and result is not None:
+            times[index, 3] = every_pair_again(result)
         if index in checkpoints:
             memory.append((index + 1, rss_mib()))
     return monitor, times, memory
+
+
+def every_pair_again(result: ConsistencyResult) -> float:
+    """Seconds to test every pair of `result`'s measures from scratch; NaN if the outcome
+    differs from `result`'s."""
+    measures = PairMeasures(pairs=result.pairs, distance_sum=result.distance_sum,
+                            point_count=result.point_count,
+                            largest=np.zeros((result.pairs.shape[0], 0)))
+    start = time.perf_counter()
+    again = evaluate_pairs(measures, result.scales, result.scan_count, result.parameters,
+                           robust=(result.trimmed_sum, result.trimmed_count))
+    seconds = time.perf_counter() - start
+    same = all(np.array_equal(getattr(again, name), getattr(result, name), equal_nan=True)
+               for name in ('tested', 'statistic', 'failed', 'overlap_counts', 'failed_counts',
+                            'inconsistent'))
+    return seconds if same else np.nan
 
 
 def moved(poses: np.ndarray, fraction: float) -> np.ndarray:
@@ -125,6 +151,20 @@ def main() -> None:
               f'{batch_time * 1e3:9.1f} ms {recompute / update:8.1f}x '
               f'{summary.measured_pairs:7d} / {full.measured_pairs:<7d}'
               f' verdict = batch: {same}')
+
+    print("\n## snapshot per update (local scales, the test from the last result while the map "
+          "only grows, copies) beside evaluate_pairs testing every pair again (what the "
+          "incremental test saves)")
+    rows = np.array_split(np.arange(count), 4)
+    for quarter in rows:
+        part = times[quarter]
+        again = part[:, 3][~np.isnan(part[:, 3])]
+        print(f'keyframes {quarter[0] + 1:>5}-{quarter[-1] + 1:<5} in snapshot median '
+              f'{np.median(part[:, 2]) * 1e3:6.2f} ms, p99 '
+              f'{np.percentile(part[:, 2], 99) * 1e3:6.2f} ms | every pair again median '
+              f'{np.median(again) * 1e3:6.2f} ms')
+    checked = ~np.isnan(times[9::10, 3])
+    print(f'same outcome as testing every pair: {int(checked.sum())} of {checked.size} checks')
 
     print('\n## memory (resident set size)')
     print(f'after warm-up {base_rss:.0f} MiB; ' + ', '.join(

@@ -106,6 +106,17 @@ class ConsistencyResult:
         return _scales_from_sums(self.pairs[local], self.trimmed_sum[local],
                                  self.trimmed_count[local], self.scan_count, self.parameters)
 
+    @classmethod
+    def untested(cls, parameters: ConsistencyParameters) -> ConsistencyResult:
+        """The result on no scans (where an incremental evaluation starts)."""
+        empty, counts = np.zeros(0), np.zeros(0, dtype=np.int64)
+        flags = np.zeros(0, dtype=bool)
+        return cls(pairs=np.zeros((0, 2), dtype=np.int64), distance_sum=empty,
+                   point_count=counts, trimmed_sum=empty, trimmed_count=counts, tested=flags,
+                   statistic=empty, failed=flags, scales=empty, overlap_counts=counts,
+                   failed_counts=counts, critical_counts=counts, inconsistent=flags,
+                   parameters=parameters)
+
     @property
     def consistent(self) -> bool:
         return not bool(self.inconsistent.any())
@@ -227,20 +238,41 @@ def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
 
 def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
                    parameters: ConsistencyParameters,
-                   robust: tuple[np.ndarray, np.ndarray] | None = None) -> ConsistencyResult:
+                   robust: tuple[np.ndarray, np.ndarray] | None = None,
+                   previous: ConsistencyResult | None = None,
+                   first_rows: np.ndarray | None = None) -> ConsistencyResult:
     """The pairwise and cascaded tests on already measured pairs (no geometry).
 
-    `robust`: see `robust_statistic`.
+    `robust`: see `robust_statistic`. `previous`: the result of these parameters on the first
+    rows of these very pairs and sums (a map that only grew since): only the new pairs and
+    the pairs of scans whose scale changed are tested again, with the same result as testing
+    every pair (a live map has a million pairs, an update changes a few thousand).
+    `first_rows` (N,), with `previous`: no pair of scan i lies before row first_rows[i] (0
+    when unknown), so the rows before those of the new and rescaled scans are not even read.
     """
     scales = np.asarray(scales, dtype=np.float64)
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
     pairs = measures.pairs
     robust = _robust_sums(measures, parameters.trim_largest) if robust is None else robust
+    arrays = (np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+              np.asarray(robust[0], dtype=np.float64), np.asarray(robust[1], dtype=np.int64),
+              scales, parameters.min_points, statistics.normal_quantile(parameters.alpha))
+    if previous is None:
+        previous = ConsistencyResult.untested(parameters)
+    elif (previous.parameters != parameters or previous.scan_count > scan_count
+          or previous.pairs.shape[0] > arrays[0].shape[0]):
+        raise ValueError('the previous result is not of a prefix of these pairs')
+    grown = scan_count - previous.scan_count
+    old_scales = np.pad(previous.scales, (0, grown), constant_values=np.nan)
+    start = 0
+    if first_rows is not None:
+        retested = np.flatnonzero(scales != old_scales)  # NaN for the new scans: all of them
+        start = min(int(first_rows[retested].min()) if retested.size else arrays[0].shape[0],
+                    previous.pairs.shape[0])
     tested, statistic, failed, overlap_counts, failed_counts = _pairwise_tests(
-        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
-        np.asarray(robust[0], dtype=np.float64), np.asarray(robust[1], dtype=np.int64),
-        scales, parameters.min_points, statistics.normal_quantile(parameters.alpha))
+        *arrays, start, old_scales, previous.tested, previous.statistic, previous.failed,
+        np.pad(previous.overlap_counts, (0, grown)), np.pad(previous.failed_counts, (0, grown)))
     critical = statistics.binomial_critical_count(overlap_counts, parameters.failure_probability,
                                                   parameters.binomial_alpha)
     inconsistent = failed_counts > critical
@@ -256,20 +288,37 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
 
 @njit(cache=True)
 def _pairwise_tests(pairs: np.ndarray, trimmed_sum: np.ndarray, trimmed_count: np.ndarray,
-                    scales: np.ndarray, min_points: int, threshold: float):
+                    scales: np.ndarray, min_points: int, threshold: float, start: int,
+                    old_scales: np.ndarray, old_tested: np.ndarray, old_statistic: np.ndarray,
+                    old_failed: np.ndarray, old_overlaps: np.ndarray, old_failures: np.ndarray):
     """Per pair: tested (enough points), Psi_ij with s = max(s_i, s_j) (NaN untested), failed
     (Psi_ij above the threshold); per scan: its tested and failed pairs (r_i and the count
-    the cascaded test compares with nu-hat). One pass: a live map has a million pairs."""
-    count = pairs.shape[0]
-    tested = np.zeros(count, dtype=np.bool_)
-    statistic = np.full(count, np.nan)
-    failed = np.zeros(count, dtype=np.bool_)
-    overlaps = np.zeros(scales.size, dtype=np.int64)
-    failures = np.zeros(scales.size, dtype=np.int64)
-    for index in range(count):
+    the cascaded test compares with nu-hat). Given these outputs on the first old_tested.size
+    pairs with `old_scales` (NaN for scans added since), only the pairs of a scan whose scale
+    changed and the new pairs are tested; the others keep their outcome and counts. Rows
+    before `start` hold none of those (the caller knows where their pairs begin)."""
+    count, known = pairs.shape[0], old_tested.size
+    # each output row written once: a million pairs make these copies the cost of an update
+    tested, statistic = np.empty(count, dtype=np.bool_), np.empty(count)
+    failed = np.empty(count, dtype=np.bool_)
+    tested[:known], statistic[:known], failed[:known] = old_tested, old_statistic, old_failed
+    tested[known:], statistic[known:], failed[known:] = False, np.nan, False
+    overlaps, failures = old_overlaps.copy(), old_failures.copy()
+    rescaled = scales != old_scales  # NaN for new scans: always true
+    for index in range(start, count):
+        first, second = pairs[index, 0], pairs[index, 1]
+        if index < known:
+            if not (rescaled[first] or rescaled[second]):
+                continue
+            if tested[index]:
+                overlaps[first] -= 1
+                overlaps[second] -= 1
+            if failed[index]:
+                failures[first] -= 1
+                failures[second] -= 1
+            tested[index], statistic[index], failed[index] = False, np.nan, False
         if trimmed_count[index] < min_points:
             continue
-        first, second = pairs[index, 0], pairs[index, 1]
         tested[index] = True
         overlaps[first] += 1
         overlaps[second] += 1

@@ -194,6 +194,10 @@ class _PairCache:
 
     def __init__(self, keep_largest: int, trim: int) -> None:
         self.size = 0
+        self.generation = 0  # counts drops: between two drops entries are only appended
+        # per slot, the first entry that can hold one of its pairs: the size when the slot's
+        # pairs were first inserted (its later partners come later), 0 after a drop
+        self._first_rows = np.zeros(0, dtype=np.int64)
         self._trim = trim
         self._pairs = np.zeros((64, 2), dtype=np.int64)
         self._distance_sum = np.zeros(64)
@@ -216,6 +220,8 @@ class _PairCache:
 
     def _keep(self, keep: np.ndarray) -> None:
         kept = int(np.count_nonzero(keep))
+        self.generation += 1
+        self._first_rows[:] = 0  # entries moved down
         (self._pairs, self._distance_sum, self._point_count, self._largest,
          self._trimmed_sum, self._trimmed_count) = (
             with_rows(array[:self.size][keep], array.shape[0]) for array in self._arrays())
@@ -235,6 +241,20 @@ class _PairCache:
         if involved.any():
             self._keep(~involved)
 
+    def first_rows(self, slot_count: int) -> np.ndarray:
+        """(slot_count,) no pair of slot s lies before entry first_rows[s]."""
+        rows = np.zeros(slot_count, dtype=np.int64)
+        known = min(slot_count, self._first_rows.size)
+        rows[:known] = self._first_rows[:known]
+        return rows
+
+    def mark_new(self, slots: np.ndarray) -> None:
+        """`slots` have no pair yet: theirs are all inserted from now on."""
+        if slots.size and slots.max() >= self._first_rows.size:
+            self._first_rows = with_rows(self._first_rows,
+                                         max(int(slots.max()) + 1, 2 * self._first_rows.size))
+        self._first_rows[slots] = self.size
+
     def insert(self, keys: np.ndarray, measures: PairMeasures) -> None:
         end = self.size + keys.size
         if end > self._pairs.shape[0]:
@@ -253,8 +273,11 @@ class _PairCache:
     def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
         """The cached pairs as PairMeasures over scan indices `rank_of_slot[slot]` (i < j);
         None means ranks are slots. Read-only views (see the class)."""
-        pairs = (self.pairs if rank_of_slot is None
-                 else np.sort(rank_of_slot[self.pairs], axis=1))
+        if rank_of_slot is None:
+            pairs = self.pairs
+        else:  # each row (i, j) with i < j; sorting rows of two is many times slower
+            first, second = rank_of_slot[self.pairs[:, 0]], rank_of_slot[self.pairs[:, 1]]
+            pairs = np.stack([np.minimum(first, second), np.maximum(first, second)], axis=1)
         return PairMeasures(pairs=_read_only(pairs),
                             distance_sum=_read_only(self._distance_sum[:self.size]),
                             point_count=_read_only(self._point_count[:self.size]),
@@ -381,6 +404,9 @@ class ConsistencyMonitor:
         # _path_slots at a keyframe count; a new trajectory clears it
         self._path_slots_of: tuple[int, np.ndarray] | None = None
         self._result: ConsistencyResult | None = None
+        # the last result with rank == slot, its pair cache and the cache's generation then:
+        # while the cache only grows, the next test starts from it
+        self._tested_on: tuple[_PairCache, int, ConsistencyResult] | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
@@ -690,6 +716,7 @@ class ConsistencyMonitor:
         self._index.update(changed, placed.extents)
         # new keyframes have no pairs yet: only moved ones lose theirs (a test over every pair)
         self._current.drop_slots(np.setdiff1d(changed, new), keyframes.count)
+        self._current.mark_new(new)
         touching = self._within_budget(self._index.pairs_touching(changed), new)
         keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
         measured = 0
@@ -719,7 +746,9 @@ class ConsistencyMonitor:
         """The test on the current measures (computed at most once per change).
 
         The statistics cover every pair of the map; a burst of updates (a Path with late
-        scans, a node catching up) costs one evaluation when its snapshot is taken.
+        scans, a node catching up) costs one evaluation when its snapshot is taken. While
+        keyframes only arrive in stamp order and none moved, only the new pairs and those of
+        scans whose scale changed are tested again (evaluate_pairs' `previous`).
         """
         if self._result is None and self.keyframe_count:
             keyframes = self._keyframes
@@ -729,9 +758,16 @@ class ConsistencyMonitor:
             ranks = None if in_order else _rank_of_slot(order)
             scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters,
                                   robust=self._local.robust())
-            self._result = evaluate_pairs(self._current.measures(ranks), scales,
-                                          keyframes.count, self.parameters,
-                                          robust=self._current.robust())
+            cache, previous = self._current, None
+            if in_order and self._tested_on is not None:
+                tested_cache, generation, tested = self._tested_on
+                if tested_cache is cache and generation == cache.generation:
+                    previous = tested
+            self._result = evaluate_pairs(cache.measures(ranks), scales, keyframes.count,
+                                          self.parameters, robust=cache.robust(),
+                                          previous=previous,
+                                          first_rows=cache.first_rows(keyframes.count))
+            self._tested_on = (cache, cache.generation, self._result) if in_order else None
         return self._result
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:

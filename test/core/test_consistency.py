@@ -50,6 +50,33 @@ def test_half_normal_pairs_pass_and_an_inflated_scan_fails():
     assert result.critical_counts[12] < 16
 
 
+def test_a_previous_result_on_a_prefix_gives_the_full_test():
+    """Pairs appended, scans added, some scales changed: retesting from the previous result
+    gives what testing every pair gives, including the pairs of rescaled scans that flip."""
+    rng = np.random.default_rng(11)
+    pairs = sorted(_ring_of_pairs(40, 6), key=lambda pair: pair[1])  # as a map grows
+    samples = [np.abs(rng.normal(0, 0.02 * (1 + (12 in pair)), 30)) for pair in pairs]
+    measures = _measures(pairs, samples)
+    before = sum(pair[1] < 30 for pair in pairs)  # the first rows: the map of 30 scans
+    prefix = PairMeasures(*(getattr(measures, name)[:before] for name in
+                            ('pairs', 'distance_sum', 'point_count', 'largest')))
+    old_scales = np.full(30, 0.02)
+    previous = evaluate_pairs(prefix, old_scales, 30, NO_TRIM)
+    assert 12 in previous.inconsistent_scans
+    scales = np.full(40, 0.02)
+    scales[[3, 12, 29]] = [0.01, 0.04, 0.03]  # scan 12 passes at its own larger scale now
+    full = evaluate_pairs(measures, scales, 40, NO_TRIM)
+    again = evaluate_pairs(measures, scales, 40, NO_TRIM, previous=previous)
+    for name in ('tested', 'statistic', 'failed', 'overlap_counts', 'failed_counts',
+                 'critical_counts', 'inconsistent'):
+        np.testing.assert_array_equal(getattr(again, name), getattr(full, name))
+    assert 12 not in full.inconsistent_scans
+    with pytest.raises(ValueError, match='not of a prefix'):
+        evaluate_pairs(prefix, old_scales, 30, NO_TRIM, previous=full)
+    with pytest.raises(ValueError, match='not of a prefix'):
+        evaluate_pairs(measures, scales, 40, ConsistencyParameters(), previous=previous)
+
+
 def test_pair_test_uses_the_larger_scale_and_the_normal_quantile():
     values = np.full(40, 0.05)
     measures = _measures([(0, 1)], [values])

@@ -124,6 +124,22 @@ def test_loop_closure_measures_only_moved_pairs(intel):
     _assert_same_verdict(monitor.snapshot().result, oracle)
 
 
+def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
+    """The statistics start from the last result while the map only grows, and from scratch
+    after a loop closure moved keyframes: each update against the batch test."""
+    stamps, ranges, poses, model = _by_stamp(intel)
+    moved = _dragged(poses, 30)
+    monitor = ConsistencyMonitor()
+    for end in range(10, len(stamps) + 1, 10):
+        for index in range(end - 10, end):
+            monitor.add_scan(stamps[index], ranges[index], model)
+        placed = poses if end <= 50 else moved  # the loop closure comes with scan 60
+        monitor.update_trajectory(stamps[:end], placed[:end])
+        reference = None if end <= 50 else poses[:end]
+        _assert_same_verdict(monitor.snapshot().result,
+                             _oracle(ranges[:end], placed[:end], model, reference))
+
+
 def test_a_partner_budget_thins_the_pairs_of_dense_keyframes_stably(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     budget = 8
