@@ -38,7 +38,8 @@ class MonitorHealth:
     changed_places: int = 0
     starting: bool = False  # the compiled kernels are still loading; inputs queue meanwhile
     start_failure: str = ''  # why the kernels failed to load: nothing is monitored
-    explanation_failure: str = ''  # why the last explanation failed ('' after a success): the verdict is older
+    # why the last explanation failed ('' after a success): the verdict shown is older
+    explanation_failure: str = ''
 
     @property
     def loss(self) -> str:
