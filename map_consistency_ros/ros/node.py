@@ -349,6 +349,7 @@ class MapConsistencyNode(Node):
             self._start_failure = f'{type(error).__name__}: {error}'
             self.get_logger().error(not_monitoring(self._start_failure))
             return
+        _run_kernels_on(self._settings.update_threads)
         self._ready.set()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)
@@ -786,6 +787,13 @@ def _deserialized(data: bytes, msgtype: str):
         raise ValueError(f'undecodable {msgtype} message ({error})') from None
 
 
+def _run_kernels_on(threads: int) -> None:
+    """Run the calling thread's compiled kernels on `threads` threads (0: every core numba
+    has; more than it has: all of them). Thread-local: a retune keeps every core."""
+    available = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(available if threads == 0 else min(threads, available))
+
+
 def _yield_to_updates() -> None:
     """Lower the calling thread's CPU priority (Linux: nice is per thread) and run its
     compiled kernels on it alone, so that on a loaded machine the second stage takes what the
@@ -794,7 +802,7 @@ def _yield_to_updates() -> None:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EXPLAINER_NICENESS)
     except (AttributeError, OSError):  # not Linux, or not allowed: same priority, still correct
         pass
-    numba.set_num_threads(EXPLAINER_THREADS)  # thread-local: the worker keeps every core
+    _run_kernels_on(EXPLAINER_THREADS)
 
 
 def _spin_until(executor: Executor, stop: threading.Event) -> None:

@@ -52,6 +52,11 @@ class NodeSettings:
         'own, on the newest map, at most this often (at once on ~/check); first-stage updates '
         'never wait for it', 's',
         (0.0, 3600.0))
+    update_threads: int = parameter(
+        1, "threads of the first stage's compiled kernels; the SLAM stack, the middleware and "
+        'the second stage share the cores, and a kernel split across busy cores waits for its '
+        'slowest part (on 2 cores one thread halved the p99 update latency); 0: every core',
+        '', (0, 1024))
     executor: str = parameter(
         'events', "how the node takes its messages: 'events' (rclpy's C++ events executor, "
         "a fraction of the Python work per message) or 'multi_threaded' (rclpy's Python "

@@ -171,6 +171,25 @@ def test_the_second_stage_thread_yields_its_priority_and_the_cores():
     assert (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0)) == before
 
 
+@pytest.mark.parametrize('requested, expected', [(1, 1), (0, 'all'), (10_000, 'all')])
+def test_the_update_thread_runs_its_kernels_on_the_threads_asked(requested, expected):
+    """update_threads on the worker's thread alone (0 or too many: every core numba has)."""
+    from map_consistency_ros.ros.node import _run_kernels_on
+    seen = {}
+
+    def worker() -> None:
+        _run_kernels_on(requested)
+        seen['threads'] = numba.get_num_threads()
+
+    before = numba.get_num_threads()
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join()
+    everything = numba.config.NUMBA_NUM_THREADS
+    assert seen['threads'] == (everything if expected == 'all' else expected)
+    assert numba.get_num_threads() == before
+
+
 def test_sigint_when_idle_ends_cleanly(ros_env):
     process = _node(ros_env)
     client = Client()
