@@ -342,6 +342,7 @@ class MapConsistencyNode(Node):
     # -- worker ------------------------------------------------------------------------------
 
     def _work(self) -> None:
+        _run_kernels_on(self._settings.update_threads)
         # records queue meanwhile: the first update then finds the kernels loaded
         try:
             warm_up()
@@ -349,7 +350,6 @@ class MapConsistencyNode(Node):
             self._start_failure = f'{type(error).__name__}: {error}'
             self.get_logger().error(not_monitoring(self._start_failure))
             return
-        _run_kernels_on(self._settings.update_threads)
         self._ready.set()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)
@@ -382,10 +382,13 @@ class MapConsistencyNode(Node):
         applied_seconds = time.monotonic() - taken  # every record, changing the map or not
         while self._jobs:
             job, future = self._jobs.popleft()
+            _run_kernels_on(0)  # a service caller waits for the job: every core
             try:
                 future.set_result(job())
             except Exception as error:  # noqa: BLE001 - handed to the waiting service
                 future.set_exception(error)
+            finally:
+                _run_kernels_on(self._settings.update_threads)
         self._greet_marker_subscribers()
         start = time.perf_counter()
         self._take_snapshot()
@@ -789,7 +792,7 @@ def _deserialized(data: bytes, msgtype: str):
 
 def _run_kernels_on(threads: int) -> None:
     """Run the calling thread's compiled kernels on `threads` threads (0: every core numba
-    has; more than it has: all of them). Thread-local: a retune keeps every core."""
+    has; more than it has: all of them). Thread-local: other threads keep theirs."""
     available = numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(available if threads == 0 else min(threads, available))
 

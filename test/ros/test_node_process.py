@@ -300,6 +300,21 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
             process.kill()
 
 
+def _send_intel_map(node: Node, statuses: list, shared_data) -> None:
+    """Once the node publishes diagnostics: the first SCANS Intel scans, then their Path."""
+    from nav_msgs.msg import Path
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
+    trajectory = node.create_publisher(Path, 'trajectory', 10)
+    _until(lambda: statuses)
+    for index in range(SCANS):
+        scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
+                                           log.ranges[index], sensor_model(log)))
+        time.sleep(0.004)
+    trajectory.publish(messages.path_message(message_class, log.timestamps[:SCANS],
+                                             log.laser_poses[:SCANS], 'map'))
+
+
 # the node's own entry point, with a second stage whose first and third explanations run out
 # of memory
 _FAILING_TWICE = """
@@ -321,22 +336,11 @@ def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shar
     """The node says it has no verdict and why, logs it once, and tries again a period later
     (it used to say 'no keyframe yet' and publish nothing); ~/check says it failed."""
     from diagnostic_msgs.msg import DiagnosticStatus
-    from nav_msgs.msg import Path
-    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
-    model = sensor_model(log)
     process = _python(ros_env, '-c', _FAILING_TWICE)
     client = Client()
     try:
         node, statuses = client.node, client.statuses()
-        scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
-        trajectory = node.create_publisher(Path, 'trajectory', 10)
-        _until(lambda: statuses)
-        for index in range(SCANS):
-            scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
-                                               log.ranges[index], model))
-            time.sleep(0.004)
-        trajectory.publish(messages.path_message(message_class, log.timestamps[:SCANS],
-                                                 log.laser_poses[:SCANS], 'map'))
+        _send_intel_map(node, statuses, shared_data)
         failed = f'no verdict yet ({SCANS} scans); explanation failed: MemoryError: injected'
         _until(lambda: statuses[-1].message == failed)
         assert statuses[-1].message == failed and statuses[-1].level == DiagnosticStatus.WARN
@@ -360,6 +364,57 @@ def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shar
         client.close()
         if process.poll() is None:
             process.kill()
+
+
+# the node's own entry point, printing how many threads the pair kernel gets, at most, in
+# first-stage updates and in ~/check
+_COUNTING_THREADS = """
+import sys
+import numba
+from map_consistency_ros.core import monitor
+from map_consistency_ros.ros import node
+real_measures, real_recompute = monitor.pair_measures, monitor.ConsistencyMonitor.recompute
+most, job = {}, []
+def pair_measures(*args, **kwargs):
+    caller = 'check' if job else 'update'
+    if numba.get_num_threads() > most.get(caller, 0):
+        most[caller] = numba.get_num_threads()
+        print(f'kernel threads in {caller}: {most[caller]}', flush=True)
+    return real_measures(*args, **kwargs)
+def recompute(self):
+    job.append(1)
+    try:
+        return real_recompute(self)
+    finally:
+        job.pop()
+monitor.pair_measures, monitor.ConsistencyMonitor.recompute = pair_measures, recompute
+sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
+                    '-p', 'stale_timeout:=60.0']))
+"""
+
+
+def test_updates_run_the_kernels_on_update_threads_and_a_check_on_every_core(ros_env,
+                                                                             shared_data):
+    """update_threads (1) from the warm-up on; a service job gets every core for its caller."""
+    process = _python(ros_env, '-c', _COUNTING_THREADS)
+    client = Client()
+    try:
+        node, statuses = client.node, client.statuses()
+        _send_intel_map(node, statuses, shared_data)
+        _until(lambda: statuses[-1].message.startswith('map '))
+        check = node.create_client(Trigger, '/map_consistency/check')
+        assert check.wait_for_service(timeout_sec=TIMEOUT)
+        answer = check.call_async(Trigger.Request())
+        _until(answer.done)
+        assert answer.done() and answer.result().success, 'the check failed'
+        _, output = _stop(process)
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
+    assert 'kernel threads in update: 1' in output, output
+    assert 'kernel threads in update: 2' not in output, output
+    assert f'kernel threads in check: {numba.config.NUMBA_NUM_THREADS}' in output, output
 
 
 def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
