@@ -64,6 +64,7 @@ def _params(tmp_path, text: str) -> str:
     ('    alpha: 0.7\n', 'alpha: 0.7 is outside [1e-09, 0.5]'),
     ('    pose_source: tf\n', "pose_source: 'tf' is not one of path"),
     ('    executor: fast\n', "executor: 'fast' is not one of events"),
+    ('    update_threads: -1\n', 'update_threads: -1 is outside [0, 1024]'),
 ])
 def test_a_bad_parameter_ends_the_node_with_one_line(ros_env, tmp_path, text, expected):
     process = _node(ros_env, '--params-file', _params(tmp_path, text))
@@ -151,22 +152,28 @@ def _thread_niceness(pid: int) -> list[int]:
     return values
 
 
+def _on_a_thread(setup: Callable[[], None]) -> dict[str, int]:
+    """Run `setup` on a new thread: the kernel threads and the niceness it leaves there."""
+    seen = {}
+
+    def run() -> None:
+        setup()
+        seen['threads'] = numba.get_num_threads()
+        seen['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    return seen
+
+
 def test_the_second_stage_thread_yields_its_priority_and_the_cores():
     """_yield_to_updates lowers only its own thread: the worker keeps its priority and every
     core for its kernels."""
     from map_consistency_ros.ros.node import (EXPLAINER_NICENESS, EXPLAINER_THREADS,
                                               _yield_to_updates)
-    seen = {}
-
-    def explainer() -> None:
-        _yield_to_updates()
-        seen['threads'] = numba.get_num_threads()
-        seen['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-
     before = (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0))
-    thread = threading.Thread(target=explainer)
-    thread.start()
-    thread.join()
+    seen = _on_a_thread(_yield_to_updates)
     assert seen == {'threads': EXPLAINER_THREADS, 'nice': EXPLAINER_NICENESS}
     assert (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0)) == before
 
@@ -175,16 +182,8 @@ def test_the_second_stage_thread_yields_its_priority_and_the_cores():
 def test_the_update_thread_runs_its_kernels_on_the_threads_asked(requested, expected):
     """update_threads on the worker's thread alone (0 or too many: every core numba has)."""
     from map_consistency_ros.ros.node import _run_kernels_on
-    seen = {}
-
-    def worker() -> None:
-        _run_kernels_on(requested)
-        seen['threads'] = numba.get_num_threads()
-
     before = numba.get_num_threads()
-    thread = threading.Thread(target=worker)
-    thread.start()
-    thread.join()
+    seen = _on_a_thread(lambda: _run_kernels_on(requested))
     everything = numba.config.NUMBA_NUM_THREADS
     assert seen['threads'] == (everything if expected == 'all' else expected)
     assert numba.get_num_threads() == before
@@ -304,12 +303,13 @@ def _send_intel_map(node: Node, statuses: list, shared_data) -> None:
     """Once the node publishes diagnostics: the first SCANS Intel scans, then their Path."""
     from nav_msgs.msg import Path
     log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    model = sensor_model(log)
     scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
     trajectory = node.create_publisher(Path, 'trajectory', 10)
     _until(lambda: statuses)
     for index in range(SCANS):
         scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
-                                           log.ranges[index], sensor_model(log)))
+                                           log.ranges[index], model))
         time.sleep(0.004)
     trajectory.publish(messages.path_message(message_class, log.timestamps[:SCANS],
                                              log.laser_poses[:SCANS], 'map'))
