@@ -247,6 +247,28 @@ def _normal_equations(residuals: np.ndarray, jacobians: np.ndarray, matched: int
 
 
 @numba.njit(cache=True)
+def _symmetric_inverse(matrix: np.ndarray, out: np.ndarray) -> float:
+    """out = the inverse of the symmetric 3 x 3 `matrix` by its cofactors; returns the
+    determinant (out holds the adjugate when that is 0).
+
+    In closed form because numba's np.linalg goes through LAPACK: a copy and a call per 3 x 3,
+    and at the first call an import of all of scipy.linalg (0.3 s of a `check`).
+    """
+    a, b, c = matrix[0, 0], matrix[0, 1], matrix[0, 2]
+    d, e, f = matrix[1, 1], matrix[1, 2], matrix[2, 2]
+    out[0, 0] = d * f - e * e
+    out[0, 1] = out[1, 0] = c * e - b * f
+    out[0, 2] = out[2, 0] = b * e - c * d
+    out[1, 1] = a * f - c * c
+    out[1, 2] = out[2, 1] = b * c - a * e
+    out[2, 2] = a * d - b * b
+    determinant = a * out[0, 0] + b * out[0, 1] + c * out[0, 2]
+    if determinant != 0.0:
+        out /= determinant
+    return determinant
+
+
+@numba.njit(cache=True)
 def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
                   gates: np.ndarray, iterations: int, trim: float, min_matches: int,
                   out_correction: np.ndarray, out_covariance: np.ndarray) -> tuple:
@@ -257,7 +279,7 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
     tx, ty, theta = 0.0, 0.0, 0.0
     residuals = np.empty(query.shape[0])
     jacobians = np.empty((query.shape[0], 3))
-    hessian = np.zeros((3, 3))
+    hessian, inverse = np.zeros((3, 3)), np.zeros((3, 3))
     gradient = np.zeros(3)
     kept, square, matched = 0, 0.0, 0
     for stage in range(gates.size):
@@ -269,9 +291,9 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
                 break
             kept, square = _normal_equations(residuals, jacobians, matched, trim, hessian,
                                              gradient)
-            if abs(np.linalg.det(hessian)) < 1e-12:
+            if abs(_symmetric_inverse(hessian, inverse)) < 1e-12:
                 break
-            step = -np.linalg.solve(hessian, gradient)
+            step = -(inverse @ gradient)
             tx += step[0]
             ty += step[1]
             theta += step[2]
@@ -279,9 +301,9 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
             if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 2e-4:
                 break
     out_correction[0], out_correction[1], out_correction[2] = tx, ty, theta
-    determined = kept >= min_matches and abs(np.linalg.det(hessian)) > 1e-12
+    determined = kept >= min_matches and abs(_symmetric_inverse(hessian, inverse)) > 1e-12
     if determined:
-        out_covariance[:, :] = square / max(kept - 3, 1) * np.linalg.inv(hessian)
+        out_covariance[:, :] = square / max(kept - 3, 1) * inverse
     else:
         out_covariance[:, :] = np.inf
     return cx, cy, matched, determined

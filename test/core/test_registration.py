@@ -126,3 +126,18 @@ def test_surface_normals_are_perpendicular_to_the_beam_neighbours(intel):
             normals[beam] = np.array([-chord[1], chord[0]]) / np.linalg.norm(chord)
     assert np.count_nonzero(normals[valid].any(axis=1)) > 0.5 * valid.sum()
     np.testing.assert_allclose(surfaces.normals[rows], normals[valid], atol=1e-12)
+
+
+def test_the_closed_form_inverse_matches_lapack():
+    from map_consistency_ros.core.registration import _symmetric_inverse
+    rng = np.random.default_rng(11)
+    for scale in (1e-3, 1.0, 1e4):
+        jacobians = rng.normal(scale=scale, size=(40, 3))
+        hessian = jacobians.T @ jacobians
+        inverse = np.empty((3, 3))
+        determinant = _symmetric_inverse(hessian, inverse)
+        assert determinant == pytest.approx(np.linalg.det(hessian), rel=1e-9)
+        np.testing.assert_allclose(inverse, np.linalg.inv(hessian), rtol=1e-9)
+    # a corridor: no information along x, so no inverse
+    corridor = np.diag([0.0, 2.0, 3.0])
+    assert _symmetric_inverse(corridor, inverse) == 0.0
