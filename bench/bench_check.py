@@ -29,17 +29,27 @@ TREE = Path(__file__).resolve().parents[1]
 INTEL = TREE.parent / 'shared' / 'data' / 'intel' / 'intel.gfs.log'
 
 
-def process_seconds(arguments: list[str], tree: Path, repeat: int) -> float:
-    """Median wall seconds of `python ARGUMENTS` with `tree` first on the import path."""
-    environment = dict(os.environ, PYTHONPATH=str(tree))
-    walls = []
+def process_seconds(arguments: list[str], trees: list[Path], repeat: int) -> list[float]:
+    """Median wall seconds of `python ARGUMENTS` with each tree first on the import path.
+
+    The trees take turns run by run, so that a machine whose speed drifts during the bench
+    (this one does, 2-3x between days) favours none of them. Bytecode is written and read as
+    on a user's machine: an installed package has it (pip and colcon compile it), while
+    PYTHONDONTWRITEBYTECODE, set here, would recompile every source of the tree at each start.
+    """
+    environment = {key: value for key, value in os.environ.items()
+                   if key != 'PYTHONDONTWRITEBYTECODE'}
+    walls: list[list[float]] = [[] for _ in trees]
     for _ in range(repeat + 1):
-        start = time.perf_counter()
-        subprocess.run([sys.executable, *arguments], env=environment, cwd=tree, check=False,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        walls.append(time.perf_counter() - start)
-    # The first run may compile into an empty numba cache: not what a user sees after install.
-    return float(np.median(walls[1:]))
+        for tree, runs in zip(trees, walls):
+            start = time.perf_counter()
+            subprocess.run([sys.executable, *arguments], cwd=tree, check=False,
+                           env=dict(environment, PYTHONPATH=str(tree)),
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            runs.append(time.perf_counter() - start)
+    # The first run may compile into an empty numba cache and write bytecode: not what a user
+    # sees after install.
+    return [float(np.median(runs[1:])) for runs in walls]
 
 
 def main() -> None:
@@ -62,7 +72,7 @@ def main() -> None:
           + ''.join(f'{name[-18:]:>20}' for name, _ in trees))
     check_seconds = 0.0
     for label, arguments, note in commands:
-        seconds = [process_seconds(arguments, tree, args.repeat) for _, tree in trees]
+        seconds = process_seconds(arguments, [tree for _, tree in trees], args.repeat)
         check_seconds = seconds[0]
         print(f'{label:<52}' + ''.join(f'{value:>20.3f}' for value in seconds) + f'   {note}')
 
