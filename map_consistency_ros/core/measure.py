@@ -92,10 +92,14 @@ def _rough_bearing(dx: float, dy: float) -> float:
 
 
 @numba.njit(cache=True)
-def _window_bound(best2: float, rho2: float) -> float:
-    """An upper bound of asin(best / rho): the half-width of the bearings around p from which
-    an edge can be closer than `best` (tan >= sin keeps it conservative)."""
-    return math.sqrt(best2 / (rho2 - best2)) + BEARING_SLACK if best2 < rho2 else math.pi
+def _beyond(angle: float, best2: float, rho2: float) -> bool:
+    """Whether every edge `angle` or more away from p's bearing is further than the best
+    distance: angle beyond asin(best / rho), bounded by its tangent (conservative) plus the
+    bearing slack, compared squared to keep a root and a division off each point's chain."""
+    if best2 >= rho2:
+        return angle > math.pi
+    reach = angle - BEARING_SLACK
+    return reach > 0.0 and reach * reach * (rho2 - best2) > best2
 
 
 @numba.njit(cache=True)
@@ -122,34 +126,27 @@ def _boundary_distance(ends: np.ndarray, sx: float, sy: float, wedge: int, beari
     dx, dy = px - sx, py - sy
     best2 = _edge_distance2(ends, sx, sy, full_circle, wedge, px, py)
     rho2 = dx * dx + dy * dy
-    window = _window_bound(best2, rho2)
     left, right = wedge, wedge
     left_angle, right_angle = low_angle, high_angle
     go_left, go_right = True, True
     visited = 1
     while (go_left or go_right) and visited < beams:
         if go_left:
-            if bearing - left_angle > window:
+            if _beyond(bearing - left_angle, best2, rho2):
                 go_left = False
             else:
                 left = left - 1 if left > 0 else last
                 left_angle -= increment if left < last else last_width
                 visited += 1
-                distance2 = _edge_distance2(ends, sx, sy, full_circle, left, px, py)
-                if distance2 < best2:
-                    best2 = distance2
-                    window = _window_bound(best2, rho2)
+                best2 = min(best2, _edge_distance2(ends, sx, sy, full_circle, left, px, py))
         if go_right and visited < beams:
-            if right_angle - bearing > window:
+            if _beyond(right_angle - bearing, best2, rho2):
                 go_right = False
             else:
                 right = right + 1 if right < last else 0
                 right_angle += increment if right < last else last_width
                 visited += 1
-                distance2 = _edge_distance2(ends, sx, sy, full_circle, right, px, py)
-                if distance2 < best2:
-                    best2 = distance2
-                    window = _window_bound(best2, rho2)
+                best2 = min(best2, _edge_distance2(ends, sx, sy, full_circle, right, px, py))
     return math.sqrt(best2)
 
 
