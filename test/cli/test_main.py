@@ -6,22 +6,22 @@ import sys
 HEAVY = ('numpy', 'numba', 'scipy.linalg', 'scipy.sparse', 'matplotlib', 'rosbags', 'rclpy')
 
 
-def _imported_after(code: str) -> tuple[dict, str]:
-    """Run `code` in a fresh interpreter; return which HEAVY modules it left imported (and
-    anything it printed as JSON under 'out'), with its stderr."""
+def _imported_after(code: str) -> dict:
+    """Run `code` in a fresh interpreter; return which HEAVY modules it left imported
+    ('loaded') and the value it left in `out`."""
     script = (f'import json, sys\n{code}\n'
               f'print(json.dumps({{"loaded": [m for m in {HEAVY!r} if m in sys.modules], '
               f'"out": globals().get("out")}}))')
     done = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def test_help_imports_no_science():
     code = ('from map_consistency_ros.cli.main import main\n'
             'try:\n    main(["--help"])\nexcept SystemExit:\n    pass')
-    imported, _ = _imported_after(code)
+    imported = _imported_after(code)
     assert imported['loaded'] == []
 
 
@@ -30,7 +30,7 @@ def test_check_runs_without_scipy_linalg_plotting_or_ros(shared_data):
     path = shared_data / 'intel' / 'intel.gfs.log'
     code = ('from map_consistency_ros.cli.main import main\n'
             f'out = main(["check", {str(path)!r}, "--max-range", "8", "--quiet"])')
-    imported, _ = _imported_after(code)
+    imported = _imported_after(code)
     assert imported['out'] == 0
     assert set(imported['loaded']) == {'numpy', 'numba'}
 
@@ -50,7 +50,7 @@ def test_numba_blas_works_and_scipy_linalg_imports_after_the_sparing():
         'out = [blas_ok, linalg_before, cython_blas is sys.modules["scipy.linalg.cython_blas"],',
         '       float(factor[1, 1])]',
     ])
-    imported, _ = _imported_after(code)
+    imported = _imported_after(code)
     assert imported['out'] == [True, False, True, 3.0]
 
 
@@ -62,5 +62,5 @@ def test_sparing_is_a_no_op_once_scipy_linalg_is_imported():
         '_spare_numba_the_scipy_linalg_import()',
         'out = sys.modules.get("scipy.linalg.cython_blas") is blas',
     ])
-    imported, _ = _imported_after(code)
+    imported = _imported_after(code)
     assert imported['out'] is True

@@ -315,6 +315,13 @@ def _send_intel_map(node: Node, statuses: list, shared_data) -> None:
                                              log.laser_poses[:SCANS], 'map'))
 
 
+# the end of the scripts below: the node's own entry point, diagnostics every 0.2 s and no
+# staleness while a test feeds it
+_NODE_MAIN = """
+sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
+                    '-p', 'stale_timeout:=60.0']))
+"""
+
 # the node's own entry point, with a second stage whose first and third explanations run out
 # of memory
 _FAILING_TWICE = """
@@ -327,9 +334,7 @@ def explain(*args, **kwargs):
         raise MemoryError('injected')
     return real(*args, **kwargs)
 node.explain = explain
-sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
-                    '-p', 'stale_timeout:=60.0']))
-"""
+""" + _NODE_MAIN
 
 
 def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shared_data):
@@ -391,9 +396,7 @@ def recompute(self):
     finally:
         job.pop()
 monitor.pair_measures, monitor.ConsistencyMonitor.recompute = pair_measures, recompute
-sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
-                    '-p', 'stale_timeout:=60.0']))
-"""
+""" + _NODE_MAIN
 
 
 def test_updates_run_the_kernels_on_update_threads_and_a_check_on_every_core(ros_env,
