@@ -1,8 +1,11 @@
 """Test the map of a CARMEN log for consistency, with the scans at the logged poses.
 
 Reads FLASER / ROBOTLASER1 records (plain or .gz), places every scan at its logged laser pose,
-runs the statistical test (Mazuran et al., ICRA 2014) and prints the verdict. Scan indices in
-every output are the 0-based positions of the laser records in the file.
+runs the statistical test (Mazuran et al., ICRA 2014) and prints the verdict. The test runs on
+the viewpoints of the trajectory (--viewpoint-spacing, --viewpoint-turn): scans taken closer
+than that to the previous viewpoint, standing still among them, are folded into it, so a log
+recorded at the laser's rate gets the verdict of the same map keyframed. Scan indices in every
+output are the 0-based positions of the laser records in the file.
 
 examples:
   map-consistency check intel.gfs.log --max-range 8 --report out/intel.json --plot out/intel.png
@@ -19,8 +22,10 @@ import numpy as np
 
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.explanation import Assessment, check_map
 from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
 
@@ -51,8 +56,10 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
-def load_scans(args: argparse.Namespace) -> tuple[carmen.CarmenLog, np.ndarray, ScanSet]:
-    """Read the log and place every `--every`-th scan; bad option values become InputError.
+def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
+               ) -> tuple[carmen.CarmenLog, np.ndarray, ScanSet]:
+    """Read the log and place the viewpoints among every `--every`-th scan; bad option values
+    become InputError.
 
     Returns the log, the record positions of the scans tested, and the scans.
     """
@@ -60,6 +67,8 @@ def load_scans(args: argparse.Namespace) -> tuple[carmen.CarmenLog, np.ndarray, 
         raise InputError('options', f'--every must be at least 1, got {args.every}')
     log = carmen.read_carmen_log(args.log)
     selected = np.arange(0, log.scan_count, args.every)
+    selected = selected[viewpoint_rows(log.laser_poses[selected], parameters.viewpoint_spacing,
+                                       parameters.viewpoint_turn)]
     try:
         model = carmen.sensor_model(log, fov=options.fov_radians(args),
                                     max_range=args.max_range, range_min=args.range_min)
@@ -97,7 +106,7 @@ def verdict_settings(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     parameters, explanation = verdict_settings(args)
-    log, selected, scans = load_scans(args)
+    log, selected, scans = load_scans(args, parameters)
     started = time.perf_counter()
     with ProgressBar('checking pairs', enabled=not args.quiet) as progress:
         # Without a bar the pairs go to the kernel in one piece, not in chunks.
@@ -105,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
                                progress=None if args.quiet else progress)
     elapsed = time.perf_counter() - started
     print(report.format_summary(assessment, str(args.log), selected))
+    print(f'  viewpoints            {selected.size} of {log.scan_count} laser records')
     print(f'  test time             {elapsed:.2f} s')
     model = scans.model
     details = {
@@ -116,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
         },
         'runtime_seconds': elapsed,
         'every': args.every,
+        'laser_records': log.scan_count,
     }
     write_outputs(args, scans, assessment, details, selected)
     for label, path in (('report', args.report), ('figure', args.plot),

@@ -37,9 +37,16 @@ class ConsistencyParameters:
     binomial_alpha: float = parameter(
         0.01, "level of the cascaded (binomial) test per scan (the paper's alpha')", '',
         (1e-9, 0.5))
+    viewpoint_spacing: float = parameter(
+        0.4, 'a scan becomes a viewpoint of the test this far from the previous one; the scans '
+        'in between are folded into it (standing still is one viewpoint; 0: every scan)', 'm',
+        (0.0, 100.0))
+    viewpoint_turn: float = parameter(
+        0.4, 'a scan turned this far from the previous viewpoint is a viewpoint too (0: every '
+        'scan)', 'rad', (0.0, 3.15))
     local_window: int = parameter(
-        40, 'temporally adjacent scans that fit a local scale, half on each side', '',
-        (0, 1000))
+        40, 'temporally adjacent viewpoints that fit a local scale, half on each side',
+        'viewpoints', (0, 1000))
     min_points: int = parameter(
         10, 'pairs with fewer inconsistent points (after trimming) are not tested', '',
         (1, 100_000))
@@ -49,8 +56,8 @@ class ConsistencyParameters:
         0.03, 'scale s_i of a scan whose neighbourhood gives no estimate', 'm', (1e-6, 10.0))
     min_scale: float = parameter(0.0, 'floor on every local scale s_i', 'm', (0.0, 10.0))
     flag_window: int = parameter(
-        0, 'keep a flag only with another flagged scan within this many indices (0: off)', '',
-        (0, 1000))
+        0, 'keep a flag only with another flagged viewpoint within this many (0: off)',
+        'viewpoints', (0, 1000))
 
     def __post_init__(self) -> None:
         for name in ('alpha', 'local_alpha', 'failure_probability', 'binomial_alpha'):

@@ -133,6 +133,9 @@ class Assessment:
     misalignments: tuple[Misalignment, ...]
     changes: tuple[ChangedPlace, ...]
     local_distortion: float  # metres (_local_distortion)
+    # registered regions whose correction moves their points by at most the tolerance: real,
+    # and reported, but no reason to fail the map
+    minor_misalignments: tuple[Misalignment, ...] = ()
 
     @property
     def distorted(self) -> bool:
@@ -169,7 +172,13 @@ class Assessment:
                       f'{self.local_distortion:.2f} m); ' if self.distorted else '')
         if not self.misalignments:
             tolerance = self.settings.misalignment_tolerance
-            return (f'{verdict}: {distortion}no misalignment above {tolerance:.2f} m; '
+            minor = ''
+            if self.minor_misalignments:
+                count = len(self.minor_misalignments)
+                largest = max(region.displacement for region in self.minor_misalignments)
+                minor = (f' ({count} minor region{"s" if count > 1 else ""} within it, '
+                         f'largest {largest:.2f} m)')
+            return (f'{verdict}: {distortion}no misalignment above {tolerance:.2f} m{minor}; '
                     f'{changes}')
         largest = _largest(self.misalignments)
         if largest.registered:
@@ -699,15 +708,20 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     beyond = codes == _CLASS_CODE[UNREGISTERED]
     flagged = _cascaded(result, pairs, misaligned | beyond) | gross
     bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
-    misalignments = _regions(scans, result, rows, moments, bad, codes, transforms,
-                             registrations.covariances[task_of_pair], task_of_pair, flagged,
-                             settings)
+    regions = _regions(scans, result, rows, moments, bad, codes, transforms,
+                       registrations.covariances[task_of_pair], task_of_pair, flagged, settings)
+    # The tolerance is the map's: a region fails it by the displacement of its own correction,
+    # however far the single registrations behind it strayed.
+    within = [region.registered and region.displacement <= settings.misalignment_tolerance
+              for region in regions]
+    minor = tuple(region for region, small in zip(regions, within) if small)
+    misalignments = tuple(region for region, small in zip(regions, within) if not small)
     flagged = _region_scans(misalignments, scans.scan_count)
     changes = _changes(scans, result, rows[codes == _CLASS_CODE[CHANGE]], settings)
     return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
                       pair_corrections=transforms, pair_displacements=displacement,
                       misaligned_scans=flagged, misalignments=misalignments, changes=changes,
-                      local_distortion=_local_distortion(result))
+                      local_distortion=_local_distortion(result), minor_misalignments=minor)
 
 
 def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,

@@ -39,6 +39,7 @@ from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
                                                 check_constraint_rows, split_constraint_rows)
 from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet, SensorModel
 from map_consistency_ros.core.spatial_index import ScanExtentIndex
+from map_consistency_ros.core.viewpoints import is_new_viewpoint
 
 # Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
 # threads for a handful of pairs costs more than it saves; from about a hundred, two threads
@@ -49,6 +50,12 @@ PARALLEL_MIN_PAIRS = 100
 MEASURE_CHUNK = 1024
 # Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
 _SLOT_BITS = 31
+# Partners of a new keyframe further apart than this many slots belong to different visits of
+# its place (a pass through a place gives consecutive overlapping keyframes; a few may miss it).
+_VISIT_GAP = 5
+# A trajectory pose's slot: its keyframe's, or one of these.
+_NO_SCAN = -1  # no scan registered for it (yet)
+_FOLDED = -2  # its scan was folded into the previous viewpoint (core/viewpoints.py)
 
 
 @dataclass(frozen=True)
@@ -73,9 +80,10 @@ class MonitorSettings:
         1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
         (1.0, 1e9))
     max_partners: int = parameter(
-        300, 'a new keyframe is measured against at most about this many earlier overlapping '
-        'keyframes, every k-th by arrival, k fixed when it arrives: bounds the cost per keyframe '
-        'of streams that make every raw scan a keyframe; 0: all', '', (0, 1_000_000))
+        300, 'a new viewpoint is measured against at most about this many earlier overlapping '
+        'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
+        'when it arrives: bounds the cost per keyframe in places visited very often; 0: all',
+        '', (0, 1_000_000))
 
     def __post_init__(self) -> None:
         if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
@@ -126,6 +134,7 @@ class MonitorSnapshot:
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
     dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
     poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
+    folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
 
     @property
     def keyframe_count(self) -> int:
@@ -298,8 +307,9 @@ class _Keyframes:
         self.poses = np.zeros((16, 3))
         self.incremental = np.zeros((16, 3))
         self.ranges = np.zeros((16, beams))
-        # pairs with earlier keyframes: every stride-th slot (1: all), fixed on arrival
-        self.stride = np.ones(16, dtype=np.int64)
+        # whether a keyframe's pairs with earlier ones were thinned to the partner budget on
+        # arrival (the kept pairs are the monitor's _kept_partners)
+        self.budgeted = np.zeros(16, dtype=bool)
         # slots in stamp order, kept: every scan and every trajectory is matched against them
         self._order = np.zeros(0, dtype=np.int64)
 
@@ -310,7 +320,7 @@ class _Keyframes:
             self.stamps, self.poses, self.incremental, self.ranges = (
                 with_rows(array, rows)
                 for array in (self.stamps, self.poses, self.incremental, self.ranges))
-            self.stride = with_rows(self.stride, rows, fill=1)
+            self.budgeted = with_rows(self.budgeted, rows, fill=False)
         slot = self.count
         self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
         self.ranges[slot] = ranges
@@ -402,7 +412,11 @@ class ConsistencyMonitor:
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
         # _path_slots at a keyframe count; a new trajectory clears it
-        self._path_slots_of: tuple[int, np.ndarray] | None = None
+        self._path_slots_of: tuple[tuple[int, int], np.ndarray] | None = None
+        # stamps of the scans folded into their previous viewpoint, sorted
+        self._folded = np.zeros(0)
+        # pair keys kept by the partner budget of keyframes that exceeded it (sorted)
+        self._kept_partners = np.zeros(0, dtype=np.int64)
         self._result: ConsistencyResult | None = None
         # the last result with rank == slot, its pair cache and the cache's generation then:
         # while the cache only grows, the next test starts from it
@@ -448,7 +462,7 @@ class ConsistencyMonitor:
                 f'takes only scans like the first ({self._keyframes.ranges.shape[1]} beams from '
                 f'{self._model.angle_min:.6g} by {self._model.angle_increment:.6g}, max range '
                 f'{self._model.max_range:g})')
-        if self._registered_slot(stamp) is not None:
+        if self._registered_slot(stamp) is not None or self._is_folded(stamp):
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
         self._buffer[stamp] = ranges
         self._newest_scan = max(self._newest_scan, stamp)
@@ -468,7 +482,7 @@ class ConsistencyMonitor:
     @property
     def pending(self) -> bool:
         """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
-        unmatched = self._path_stamps[self._path_slots() < 0]
+        unmatched = self._path_stamps[self._path_slots() == _NO_SCAN]
         return bool(unmatched.size and np.isfinite(self._buffer_matches(unmatched)).any())
 
     def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
@@ -518,6 +532,9 @@ class ConsistencyMonitor:
         self._current = _PairCache(self._keep, trim)
         self._local = _PairCache(self._keep, trim)
         self._placed, self._placed_incremental = _Placement(), _Placement()
+        self._kept_partners = np.zeros(0, dtype=np.int64)  # chosen again on the current poses
+        if self._keyframes is not None:
+            self._keyframes.budgeted[:] = False
         slots = np.arange(self.keyframe_count)
         measured = self._measure(slots, slots) if slots.size else 0
         self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
@@ -597,12 +614,17 @@ class ConsistencyMonitor:
     def _loss(self) -> dict[str, int]:
         # Scans arrive in stamp order: a pose older than the newest scan and still without
         # one names a scan that was lost (or refused).
-        unmatched = self._path_stamps[self._path_slots() < 0]
+        unmatched = self._path_stamps[self._path_slots() == _NO_SCAN]
         late = unmatched < self._newest_scan - self.settings.stamp_tolerance
         return dict(dropped_scans=self.dropped_scans,
-                    poses_without_scan=int(np.count_nonzero(late)))
+                    poses_without_scan=int(np.count_nonzero(late)),
+                    folded_scans=int(self._folded.size))
 
     # -- bookkeeping -------------------------------------------------------------------------
+
+    def _is_folded(self, stamp: float) -> bool:
+        return bool(_match(np.array([stamp]), self._folded, self.settings.stamp_tolerance,
+                           np.arange(self._folded.size))[0] >= 0)
 
     def _registered_slot(self, stamp: float) -> int | None:
         if self.keyframe_count == 0:
@@ -618,14 +640,20 @@ class ConsistencyMonitor:
                         np.nan)
 
     def _path_slots(self) -> np.ndarray:
-        """For each pose of the last trajectory, its keyframe slot or -1 (a copy: callers
-        fill in slots they register)."""
+        """For each pose of the last trajectory, its keyframe slot, _FOLDED or _NO_SCAN (a
+        copy: callers fill in slots they register)."""
         count = self.keyframe_count
-        if self._path_slots_of is None or self._path_slots_of[0] != count:
+        state = (count, self._folded.size)
+        if self._path_slots_of is None or self._path_slots_of[0] != state:
             # kept: the node asks on every scan whether one is pending
-            slots = (np.full(self._path_stamps.size, -1, dtype=np.int64) if count == 0 else
-                     self._keyframes.match(self._path_stamps, self.settings.stamp_tolerance))
-            self._path_slots_of = (count, slots)
+            slots = (np.full(self._path_stamps.size, _NO_SCAN, dtype=np.int64) if count == 0
+                     else self._keyframes.match(self._path_stamps,
+                                                self.settings.stamp_tolerance))
+            if self._folded.size:
+                folded = _match(self._path_stamps, self._folded, self.settings.stamp_tolerance,
+                                np.arange(self._folded.size)) >= 0
+                slots[folded & (slots == _NO_SCAN)] = _FOLDED
+            self._path_slots_of = (state, slots)
         return self._path_slots_of[1].copy()
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
@@ -633,7 +661,7 @@ class ConsistencyMonitor:
         path_slots = self._path_slots()
         moved = self._move_keyframes(path_slots)
         new = self._register(path_slots)
-        self._unmatched = int(np.count_nonzero(self._path_slots() < 0))
+        self._unmatched = int(np.count_nonzero(self._path_slots() == _NO_SCAN))
         changed = np.union1d(moved, new).astype(np.int64)
         measured = self._measure(changed, new) if changed.size else 0
         self._last = UpdateSummary(new_keyframes=int(new.size), moved_keyframes=int(moved.size),
@@ -656,21 +684,42 @@ class ConsistencyMonitor:
         return slots[moved]
 
     def _register(self, path_slots: np.ndarray) -> np.ndarray:
-        """New keyframes for poses whose scan is buffered; their incremental poses."""
-        new = []
-        unregistered = np.flatnonzero(path_slots < 0)
+        """New keyframes for poses whose scan is buffered and that are new viewpoints; their
+        incremental poses. The scans of the other poses are folded (counted, not kept)."""
+        new, folded = [], []
+        unregistered = np.flatnonzero(path_slots == _NO_SCAN)
         matches = self._buffer_matches(self._path_stamps[unregistered])
         for index, buffered in zip(unregistered[np.isfinite(matches)],
                                    matches[np.isfinite(matches)]):
             if buffered not in self._buffer:
                 continue  # two poses within the tolerance of one scan: the first takes it
+            if not self._new_viewpoint(index, path_slots):
+                self._buffer.pop(float(buffered))
+                folded.append(float(buffered))
+                path_slots[index] = _FOLDED
+                continue
             pose = self._path_poses[index]
             incremental = self._incremental_pose(index, path_slots)
             scan = self._buffer.pop(float(buffered))
             slot = self._keyframes.append(float(buffered), pose, incremental, scan)
             path_slots[index] = slot
             new.append(slot)
+        if folded:
+            self._folded = np.sort(np.concatenate([self._folded, folded]))
         return np.asarray(new, dtype=np.int64)
+
+    def _new_viewpoint(self, index: int, path_slots: np.ndarray) -> bool:
+        """Whether pose `index` of the trajectory is a viewpoint: far enough from the nearest
+        earlier keyframe of the trajectory (core/viewpoints.py). A pose with no earlier
+        keyframe (the first, or a late first scan) always is."""
+        earlier = np.flatnonzero(path_slots[:index] >= 0)
+        if earlier.size == 0:
+            return True
+        # the laser's travel, as check measures it on a log's laser poses
+        laser = sensor_poses(self._path_poses[[earlier[-1], index]], self._offset)
+        step = se2.relative(laser[0], laser[1])
+        return is_new_viewpoint(step, self.parameters.viewpoint_spacing,
+                                self.parameters.viewpoint_turn)
 
     def _incremental_pose(self, index: int, path_slots: np.ndarray) -> np.ndarray:
         """First-seen pose relative to the nearest keyframe of the same trajectory.
@@ -731,16 +780,47 @@ class ConsistencyMonitor:
         return measured
 
     def _within_budget(self, pairs: np.ndarray, new: np.ndarray) -> np.ndarray:
-        """The pairs (i, j), i < j slots, the budget of j keeps: with every earlier slot, or
-        with every k-th one when more than `max_partners` overlapped j on arrival (k fixed
-        then, so that moves re-measure the same pairs). Thinning by slot keeps pairs with
-        every visit of a place; the local scales have pairs of their own (_update_local)."""
-        budget, stride = self.settings.max_partners, self._keyframes.stride
-        if budget and new.size:
-            earlier = np.bincount(pairs[:, 1], minlength=self._keyframes.count)[new]
-            stride[new] = np.maximum(1, -(-earlier // budget))
-        step = stride[pairs[:, 1]]
-        return pairs[(step == 1) | (pairs[:, 0] % step == pairs[:, 1] % step)]
+        """The pairs (i, j), i < j slots, the budget of j keeps: with every earlier slot, or,
+        when more than `max_partners` overlapped j on arrival, with the nearest keyframes of
+        each earlier visit of its place (_nearest_of_each_visit), chosen then so that moves
+        re-measure the same pairs. Every visit keeps pairs, so the failures of a revisit
+        show whatever the budget; the local scales have pairs of their own (_update_local)."""
+        budget, keyframes = self.settings.max_partners, self._keyframes
+        if budget and new.size and pairs.size:
+            later = pairs[:, 1]
+            counts = np.bincount(later, minlength=keyframes.count)
+            crowded = new[counts[new] > budget]
+            if crowded.size:
+                kept = [self._nearest_of_each_visit(pairs[later == slot, 0], slot, budget)
+                        for slot in crowded]
+                keyframes.budgeted[crowded] = True
+                self._kept_partners = np.union1d(self._kept_partners, np.concatenate(kept))
+        budgeted = keyframes.budgeted[pairs[:, 1]]
+        if not budgeted.any():
+            return pairs
+        keep = ~budgeted
+        keep[budgeted] = np.isin(_pair_keys(pairs[budgeted, 0], pairs[budgeted, 1]),
+                                 self._kept_partners)
+        return pairs[keep]
+
+    def _nearest_of_each_visit(self, partners: np.ndarray, slot: int, budget: int
+                               ) -> np.ndarray:
+        """Pair keys of `slot` with the nearest of its earlier `partners` in each visit: runs
+        of partners at most _VISIT_GAP slots apart (one pass through the place) share the
+        budget evenly, at least one pair each."""
+        partners = np.unique(partners)
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(partners) > _VISIT_GAP) + 1])
+        visit = np.zeros(partners.size, dtype=np.int64)
+        visit[starts[1:]] = 1
+        visit = np.cumsum(visit)
+        quota = max(budget // starts.size, 1)
+        laser = sensor_poses(self._keyframes.poses[np.append(partners, slot)], self._offset)
+        distance = np.hypot(*(laser[:-1, :2] - laser[-1, :2]).T)
+        order = np.lexsort((distance, visit))  # by visit, nearest first
+        rank = np.empty(partners.size, dtype=np.int64)
+        rank[order] = np.arange(partners.size) - starts[visit[order]]
+        chosen = partners[rank < quota]
+        return _pair_keys(chosen, np.full(chosen.size, slot))
 
     def _evaluate(self) -> ConsistencyResult | None:
         """The test on the current measures (computed at most once per change).

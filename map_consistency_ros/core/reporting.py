@@ -50,19 +50,25 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
         'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
         'local_distortion_m': assessment.local_distortion,
         'distorted': assessment.distorted,
-        'misalignments': [{
-            'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
-            'dx_m': region.correction[0], 'dy_m': region.correction[1],
-            'dtheta_deg': np.degrees(region.correction[2]),
-            'std_dx_m': region.correction_std[0], 'std_dy_m': region.correction_std[1],
-            'std_dtheta_deg': np.degrees(region.correction_std[2]),
-            'displacement_m': region.displacement, 'pairs': region.pairs,
-            'registered': region.registered,
-        } for region in assessment.misalignments],
+        'misalignments': [_region(region, ids) for region in assessment.misalignments],
+        'minor_misalignments': [_region(region, ids)
+                                for region in assessment.minor_misalignments],
         'changes': [{'scans': ids[place.scans], 'x': place.x, 'y': place.y,
                      'points': place.points} for place in assessment.changes],
     })
     return content
+
+
+def _region(region, ids: np.ndarray) -> dict:
+    return {
+        'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
+        'dx_m': region.correction[0], 'dy_m': region.correction[1],
+        'dtheta_deg': np.degrees(region.correction[2]),
+        'std_dx_m': region.correction_std[0], 'std_dy_m': region.correction_std[1],
+        'std_dtheta_deg': np.degrees(region.correction_std[2]),
+        'displacement_m': region.displacement, 'pairs': region.pairs,
+        'registered': region.registered,
+    }
 
 
 def plain(value):

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log
 
 # dataset name -> corrected log, relative to the shared data folder
@@ -78,15 +79,7 @@ class SuiteMap:
 
 def keyframes(poses: np.ndarray, distance: float, angle: float) -> np.ndarray:
     """Indices of the poses kept when each must move `distance` or turn `angle` from the last."""
-    poses = np.asarray(poses, dtype=np.float64)
-    if len(poses) == 0:
-        return np.zeros(0, dtype=np.int64)
-    kept = [0]
-    for index in range(1, len(poses)):
-        step = se2.relative(poses[kept[-1]], poses[index])
-        if np.hypot(step[0], step[1]) >= distance or abs(step[2]) >= angle:
-            kept.append(index)
-    return np.array(kept, dtype=np.int64)
+    return viewpoint_rows(poses, distance, angle)
 
 
 def displace(poses: np.ndarray, first: int, last: int, rotation: float,

@@ -28,6 +28,7 @@ from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
 from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -175,23 +176,27 @@ def build(data: Path, datasets: list[str], seams: int, seed: int) -> list[WholeL
                    for item in false_loop_maps(dataset, data, seed)]
 
 
-def map_scans(whole: WholeLogMap) -> ScanSet:
-    """The map's scans placed at its poses."""
+def map_scans(whole: WholeLogMap, parameters: ConsistencyParameters | None = None
+              ) -> tuple[ScanSet, np.ndarray]:
+    """The map's viewpoints placed at its poses (as `check` tests a log), and their rows."""
+    parameters = parameters or ConsistencyParameters()
+    rows = viewpoint_rows(whole.poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
     log = runner.cached_log(whole.log_path)
-    return ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+    return ScanSet.from_ranges(log.ranges[whole.scan_indices[rows]], whole.poses[rows],
+                               sensor_model(log)), rows
 
 
 def assess(whole: WholeLogMap, parameters: ConsistencyParameters | None = None,
            settings: ExplanationSettings | None = None) -> tuple[ScanSet, Assessment]:
-    """The map's scans and both stages' verdict on them."""
-    scans = map_scans(whole)
+    """The map's viewpoints and both stages' verdict on them."""
+    scans, _ = map_scans(whole, parameters)
     return scans, explain(scans, check_consistency(scans, parameters), settings)
 
 
 def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
           settings: ExplanationSettings, baseline: BaselineParameters) -> WholeLogResult:
     """Both stages at the given settings, the baseline's statistic, and the map's label."""
-    scans = map_scans(whole)
+    scans, rows = map_scans(whole, parameters)
     started = time.perf_counter()
     result = check_consistency(scans, parameters)
     middle = time.perf_counter()
@@ -200,7 +205,7 @@ def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
     statistic = map_statistic(pair_log_likelihoods(scans, result.pairs, baseline), baseline)
     return WholeLogResult(
         name=whole.name, dataset=whole.dataset, kind=whole.kind, description=whole.description,
-        displacement=observable_displacement(scans, whole.true_poses, parameters),
+        displacement=observable_displacement(scans, whole.true_poses[rows], parameters),
         paper_consistent=result.consistent, consistent=assessment.consistent,
         summary_line=assessment.summary_line(), paper_flagged=int(result.inconsistent.sum()),
         flagged=int(assessment.flagged.sum()), baseline_statistic=statistic,

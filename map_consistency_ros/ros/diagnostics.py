@@ -30,6 +30,7 @@ class MonitorHealth:
     lost_scans: int = 0  # scans the node could not process: DDS losses, full queue or buffer
     gap_scans: int = 0  # scans missing from the stamp sequence (an estimate)
     poses_without_scan: int = 0  # keyframe poses older than the newest scan and still unmatched
+    folded_scans: int = 0  # keyframes folded into the previous viewpoint (not lost, not tested)
     resets: int = 0
     last_reset: str = ''
     verdict: str = ''  # the summary line of both stages, '' before the first verdict
@@ -118,6 +119,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'lost scans': str(health.lost_scans),
         'scans missing from stamps': str(health.gap_scans),
         'poses without scan': str(health.poses_without_scan),
+        'folded keyframes': str(health.folded_scans),
         'resets': str(health.resets),
         'last reset': health.last_reset or 'none',
         'second stage failure': health.explanation_failure or 'none',

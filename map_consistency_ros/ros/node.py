@@ -571,7 +571,8 @@ class MapConsistencyNode(Node):
         content.update(plain(dict(update_latency_s=self._latency, updates=self._updates,
                                   phi=self._phi,
                                   timing=self._timing, lost_scans=self._health().lost_scans,
-                                  keyframes=snapshot.keyframe_count)))
+                                  keyframes=snapshot.keyframe_count,
+                                  folded_keyframes=snapshot.folded_scans)))
         if self._feed.bridge_counts is not None:
             content['slam_toolbox_bridge'] = plain(asdict(self._feed.bridge_counts))
         return content
@@ -619,7 +620,8 @@ class MapConsistencyNode(Node):
             seconds_since_input=None if last_input is None else max(now - last_input, 0.0),
             stale_timeout=stale_timeout, queued_scans=queued,
             lost_scans=lost + snapshot.dropped_scans, gap_scans=feed.gap_scans,
-            poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
+            poses_without_scan=snapshot.poses_without_scan,
+            folded_scans=snapshot.folded_scans, resets=feed.resets,
             last_reset=feed.last_reset, starting=not self._ready.is_set(),
             start_failure=self._start_failure, explanation_failure=self._explanation_failure)
 

@@ -8,18 +8,23 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli.main import main
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 
 
 def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
-    path, _, _ = room_log()
+    path, poses, _ = room_log()
     report, plot, pairs = tmp_path / 'r.json', tmp_path / 'map.png', tmp_path / 'pairs.csv'
     code = main(['check', str(path), '--quiet', '--report', str(report), '--plot', str(plot),
                  '--pairs-csv', str(pairs)])
     out = capsys.readouterr().out
     assert code == 0, out
-    assert 'CONSISTENT' in out and 'scans                 40' in out
+    # 40 scans 0.26 m and 0.16 rad apart: about every second one is a viewpoint (0.4 m)
+    assert 'CONSISTENT' in out and 'scans                 19' in out
+    assert 'viewpoints            19 of 40 laser records' in out
     data = json.loads(report.read_text())
     assert data['verdict'] == 'consistent'
+    assert data['scans']['id'] == viewpoint_rows(poses, 0.4, 0.4).tolist()
+    assert data['laser_records'] == 40 and min(np.diff(data['scans']['id'])) == 2
     assert data['sensor_model']['angle_min'] == pytest.approx(-np.pi / 2)
     assert data['sensor_model']['angle_increment'] == pytest.approx(np.pi / 180)
     assert data['sensor_model']['max_range'] == 8.0 and data['sensor_model']['range_min'] == 0.0
@@ -48,8 +53,10 @@ def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
         shifted.append(' '.join(tokens))
     path.write_text('\n'.join(shifted) + '\n')
     explain, report = tmp_path / 'pairs.png', tmp_path / 'r.json'
+    # The room's lap is 10 m, shorter than the local window of 40 viewpoints 0.4 m apart:
+    # every scan is a viewpoint here, as the keyframes of a log of a large building are.
     code = main(['check', str(path), '--quiet', '--explain', str(explain), '--report',
-                 str(report)])
+                 str(report), '--viewpoint-spacing', '0', '--viewpoint-turn', '0'])
     out = capsys.readouterr().out
     assert code == 1
     assert 'INCONSISTENT: 1 misaligned region (largest 0.' in out
@@ -127,3 +134,21 @@ def test_bad_verdict_options_exit_2_with_one_line(room_log, capsys, option, valu
     assert main(['check', str(path), '--quiet', option, value]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_the_same_real_map_at_two_densities_gets_the_same_verdict(shared_data, tmp_path):
+    """Freiburg 079 recorded scan by scan (0.1 m apart) and every 5th scan (0.5 m): the same
+    viewpoints' worth of map, the same verdict and about the same number of viewpoints."""
+    log = shared_data / 'fr079' / 'freiburg-079-corrected.log.gz'
+    reports = {}
+    for every in (1, 5):
+        report = tmp_path / f'every{every}.json'
+        assert main(['check', str(log), '--quiet', '--every', str(every),
+                     '--report', str(report)]) == 0
+        reports[every] = json.loads(report.read_text())
+    dense, sparse = reports[1], reports[5]
+    assert dense['verdict'] == sparse['verdict'] == 'consistent'
+    assert dense['laser_records'] == 4791
+    # 4,791 records become about as many viewpoints as the 959 of every 5th scan
+    assert 0.8 < dense['summary']['scans'] / sparse['summary']['scans'] < 1.5
+    assert dense['misalignments'] == sparse['misalignments'] == []

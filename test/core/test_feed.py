@@ -4,17 +4,20 @@ import math
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.feed import (RESET_CONFIRMATIONS, Applied, FeedSettings,
                                            MonitorFeed, PoseKeyframer, ScanGaps)
 from map_consistency_ros.core.monitor import MonitorSettings
 from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
                                               PoseSample, Scan)
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 MODEL = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 179, max_range=81.83)
 SCANS = 60
+# Tests of how poses become keyframes: every keyframe is a viewpoint of the test.
+EVERY_KEYFRAME = ConsistencyParameters(viewpoint_spacing=0.0, viewpoint_turn=0.0)
 
 
 @pytest.fixture(scope='module')
@@ -34,8 +37,14 @@ def test_keyframe_estimates_give_the_batch_verdict(intel):
     for index, scan in enumerate(_scan_records(stamps, ranges, model)):
         assert feed.apply(scan).warnings == ()
         applied = feed.apply(KeyframeEstimate(stamps=stamps[:index + 1], poses=poses[:index + 1]))
-        assert applied.summary is not None and applied.summary.new_keyframes == 1
-    oracle = check_consistency(ScanSet.from_ranges(ranges, poses, model))
+        # a keyframe folded into the previous viewpoint changes nothing to test
+        assert applied.summary is None or applied.summary.new_keyframes == 1
+    # the viewpoints check selects on the same poses (they never moved)
+    parameters = ConsistencyParameters()
+    rows = viewpoint_rows(poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
+    assert 0 < SCANS - rows.size == feed.monitor.snapshot().folded_scans
+    np.testing.assert_array_equal(feed.monitor.snapshot().stamps, stamps[rows])
+    oracle = check_consistency(ScanSet.from_ranges(ranges[rows], poses[rows], model))
     result = feed.monitor.snapshot().result
     np.testing.assert_array_equal(result.inconsistent, oracle.inconsistent)
     assert result.failed_pair_count == oracle.failed_pair_count
@@ -43,8 +52,8 @@ def test_keyframe_estimates_give_the_batch_verdict(intel):
 
 def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
     stamps, ranges, poses, model = intel
-    feed = MonitorFeed(settings=FeedSettings(pose_source='odometry', keyframe_distance=0.3,
-                                             keyframe_angle=0.2))
+    feed = MonitorFeed(EVERY_KEYFRAME, settings=FeedSettings(
+        pose_source='odometry', keyframe_distance=0.3, keyframe_angle=0.2))
     scans = _scan_records(stamps, ranges, model)
     for scan, stamp, pose in zip(scans, stamps, poses):
         feed.apply(scan)
@@ -171,7 +180,7 @@ def _slam_toolbox_records(stream):
 
 def test_slam_toolbox_poses_and_markers_follow_a_loop_closure(slam_toolbox_stream):
     stream = slam_toolbox_stream
-    feed = MonitorFeed(settings=FeedSettings(pose_source='slam_toolbox'))
+    feed = MonitorFeed(EVERY_KEYFRAME, settings=FeedSettings(pose_source='slam_toolbox'))
     updates = 0
     for record in _slam_toolbox_records(stream):
         applied = feed.apply(record)
@@ -188,7 +197,7 @@ def test_slam_toolbox_poses_and_markers_follow_a_loop_closure(slam_toolbox_strea
     assert (counts.keyframes, counts.pending_poses, counts.vertices_without_pose) == (
         len(stream.stamps), 0, 0)
     # the verdict of a back-end publishing its full keyframe poses (a Path) at each snapshot
-    path = MonitorFeed()
+    path = MonitorFeed(EVERY_KEYFRAME)
     for index, ids, _ in stream.snapshots:
         for row in range(index - 9, index + 1):
             path.apply(Scan(stamp=float(stream.stamps[row]), ranges=stream.ranges[row],

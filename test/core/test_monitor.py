@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.core.consistency import (ConsistencyResult, check_consistency,
-                                                  inconsistent_endpoints)
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  check_consistency, inconsistent_endpoints)
 from map_consistency_ros.core.measure import point_distances
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
@@ -16,6 +16,8 @@ from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 # Scans 270..349 of the Intel log: one revisit, and two stamps out of file order (294/295).
 FIRST, LAST = 270, 350
+# The incremental machinery against the batch test: every keyframe is a viewpoint.
+EVERY_KEYFRAME = ConsistencyParameters(viewpoint_spacing=0.0, viewpoint_turn=0.0)
 
 
 @pytest.fixture(scope='module')
@@ -28,7 +30,7 @@ def intel(shared_data):
 
 def _stream(stamps, ranges, poses, model, settings=None) -> ConsistencyMonitor:
     """Scans and growing trajectories in file order, as a SLAM front-end emits them."""
-    monitor = ConsistencyMonitor(settings=settings)
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME, settings=settings)
     for index in range(len(stamps)):
         monitor.add_scan(stamps[index], ranges[index], model)
         monitor.update_trajectory(stamps[:index + 1], poses[:index + 1])
@@ -93,7 +95,7 @@ def test_streaming_equals_the_batch_test_in_stamp_order(intel, streamed):
 def test_loop_closure_measures_only_moved_pairs(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     half = len(stamps) // 2
-    monitor = ConsistencyMonitor()
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME)
     for stamp, scan in zip(stamps, ranges):
         monitor.add_scan(stamp, scan, model)
     first = monitor.update_trajectory(stamps, poses)
@@ -129,7 +131,7 @@ def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
     after a loop closure moved keyframes: each update against the batch test."""
     stamps, ranges, poses, model = _by_stamp(intel)
     moved = _dragged(poses, 30)
-    monitor = ConsistencyMonitor()
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME)
     for end in range(10, len(stamps) + 1, 10):
         for index in range(end - 10, end):
             monitor.add_scan(stamps[index], ranges[index], model)
@@ -351,7 +353,8 @@ def test_laser_offset_places_the_scans(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     offset = np.array([0.2, -0.05, 0.1])
     keyframe_poses = se2.compose(poses[:30], np.broadcast_to(se2.inverse(offset), (30, 3)))
-    monitor = ConsistencyMonitor(settings=MonitorSettings(laser_offset=tuple(offset)))
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME,
+                                 settings=MonitorSettings(laser_offset=tuple(offset)))
     for stamp, scan in zip(stamps[:30], ranges[:30]):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps[:30], keyframe_poses)

@@ -45,6 +45,9 @@ from map_consistency_ros.ros.settings import parameter_file
 
 REPO = FilePath(__file__).resolve().parents[2]
 SCANS = 80  # the first 80 Intel scans form a consistent map at the logged poses
+# The node's outputs per keyframe: every keyframe is a viewpoint (the folding of keyframes
+# into viewpoints is tested in core/test_monitor.py and by replay against check).
+EVERY_KEYFRAME = ('-p', 'viewpoint_spacing:=0.0', '-p', 'viewpoint_turn:=0.0')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TIMEOUT = 20.0
@@ -136,7 +139,7 @@ def _node_process(env: dict[str, str]) -> Iterator[subprocess.Popen]:
     command = [sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args',
                '--params-file', str(REPO / 'config' / 'map_consistency.yaml'),
                '-p', 'stale_timeout:=4.0', '-p', 'diagnostics_period:=0.2',
-               '-p', 'grid_steps:=12']
+               '-p', 'grid_steps:=12', *EVERY_KEYFRAME]
     # a file, not a pipe: nobody reads the node's output until the end
     log_path = FilePath(env['ROS_LOG_DIR']) / 'node_output.txt'
     with open(log_path, 'w') as output:

@@ -49,7 +49,10 @@ def _python(ros_env, *arguments: str) -> subprocess.Popen:
 
 
 def _node(ros_env, *arguments: str) -> subprocess.Popen:
-    return _python(ros_env, '-m', 'map_consistency_ros.ros.node', '--ros-args', *arguments)
+    """The node; every keyframe is a viewpoint, so that counts of scans sent are counts of
+    keyframes tested."""
+    return _python(ros_env, '-m', 'map_consistency_ros.ros.node', '--ros-args',
+                   '-p', 'viewpoint_spacing:=0.0', *arguments)
 
 
 def _params(tmp_path, text: str) -> str:
@@ -319,7 +322,7 @@ def _send_intel_map(node: Node, statuses: list, shared_data) -> None:
 # staleness while a test feeds it
 _NODE_MAIN = """
 sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2',
-                    '-p', 'stale_timeout:=60.0']))
+                    '-p', 'stale_timeout:=60.0', '-p', 'viewpoint_spacing:=0.0']))
 """
 
 # the node's own entry point, with a second stage whose first and third explanations run out
