@@ -10,7 +10,6 @@ so a DCS retune never blocks monitoring. The contract is in docs/node.md.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
@@ -45,7 +44,7 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.explanation import (Assessment, ExplanationSettings,
                                                   RegistrationCache, explain,
                                                   misaligned_endpoints)
-from map_consistency_ros.core.reporting import assessment_report, plain
+from map_consistency_ros.core.reporting import assessment_report, plain, to_json
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.feed import FeedSettings, MonitorFeed, warm_up
 from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
@@ -551,7 +550,7 @@ class MapConsistencyNode(Node):
         if changed_at is not None:
             self._latency = time.monotonic() - changed_at
             self._updates += 1
-        self._report.publish(String(data=json.dumps(self._report_dict())))
+        self._report.publish(String(data=to_json(self._report_dict())))
         self._publish_diagnostics()
 
     def _greet_marker_subscribers(self) -> None:

@@ -1,6 +1,5 @@
 """`map-consistency replay`: bags through the live monitor, the CARMEN round trip, bad bags."""
 import csv
-import json
 import os
 import random
 import subprocess
@@ -72,11 +71,11 @@ def round_trip(shared_data, tmp_path_factory):
     return folder, checked, replayed
 
 
-def test_round_trip_verdict(round_trip):
+def test_round_trip_verdict(strict_json, round_trip):
     folder, checked, replayed = round_trip
     assert replayed == checked
-    check_report = json.loads((folder / 'check.json').read_text())
-    replay_report = json.loads((folder / 'replay.json').read_text())
+    check_report = strict_json((folder / 'check.json').read_text())
+    replay_report = strict_json((folder / 'replay.json').read_text())
     assert replay_report['verdict'] == check_report['verdict']
     assert replay_report['inconsistent_scans'] == check_report['inconsistent_scans']
     for key in ('tested_pairs', 'failed_pairs', 'critical_count'):
@@ -137,12 +136,12 @@ def test_odometry_bag_keyframes(intel_odometry):
     assert snapshot.result.scan_count == snapshot.keyframe_count
 
 
-def test_odometry_bag_cli(intel_odometry, tmp_path, capsys):
+def test_odometry_bag_cli(strict_json, intel_odometry, tmp_path, capsys):
     bag_path = intel_odometry[0]
     code = main(['replay', str(bag_path), '--pose-topic', '/odom', '--quiet',
                  '--report', str(tmp_path / 'r.json')])
     out = capsys.readouterr().out
-    report = json.loads((tmp_path / 'r.json').read_text())
+    report = strict_json((tmp_path / 'r.json').read_text())
     assert code == (0 if report['verdict'] == 'consistent' else 1)
     assert report['replay']['keyframes'] == intel_odometry[1].keyframe_count
     assert 'scans/s' in out and "the bag's real time" in out
@@ -304,8 +303,8 @@ def wrong_loop_closure(round_trip):
     return path
 
 
-def test_replay_of_recorded_node_inputs_matches_the_node(wrong_loop_closure, ros_domain,
-                                                         tmp_path):
+def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop_closure,
+                                                         ros_domain, tmp_path):
     """The node fed by --publish, and replay of a recording of its inputs, agree."""
     from nav_msgs.msg import Path
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -330,11 +329,11 @@ def test_replay_of_recorded_node_inputs_matches_the_node(wrong_loop_closure, ros
                      '--subscribers', '2', '--quiet']) == 0
         reports = listener.received['/map_consistency/report']
         assert listener.wait(lambda: len(listener.received['/trajectory']) == ROUND_TRIP_SCANS + 1
-                             and reports and json.loads(reports[-1][1].data)['scans']
+                             and reports and strict_json(reports[-1][1].data)['scans']
                              == ROUND_TRIP_SCANS, 60), 'the node did not take every scan'
         # the second stage judges the last estimate once the input pauses: wait for quiet
         assert listener.wait(lambda: time.monotonic_ns() - reports[-1][0] > 2.5e9, 60)
-        node_report = json.loads(reports[-1][1].data)
+        node_report = strict_json(reports[-1][1].data)
         node_consistent = listener.received['/map_consistency/consistent'][-1][1].data
     finally:
         listener.close()
@@ -349,7 +348,7 @@ def test_replay_of_recorded_node_inputs_matches_the_node(wrong_loop_closure, ros
                            '/trajectory': 'nav_msgs/msg/Path',
                            '/constraints': 'std_msgs/msg/Float64MultiArray'})
     code = main(['replay', str(recorded), '--quiet', '--report', str(tmp_path / 'r.json')])
-    report = json.loads((tmp_path / 'r.json').read_text())
+    report = strict_json((tmp_path / 'r.json').read_text())
     assert code == 1 and not node_consistent and report['verdict'] == 'inconsistent'
     assert report['summary']['inconsistent_scans'] > 0
     # the node said what replay says: the paper's figures and both stages' verdict
@@ -368,12 +367,12 @@ def test_publish_refuses_ros1(intel_odometry, capsys):
     assert 'ROS 1 serialized' in _one_line_error(capsys)
 
 
-def test_duration_limits_the_replay(intel_odometry, tmp_path):
+def test_duration_limits_the_replay(strict_json, intel_odometry, tmp_path):
     bag_path, _, details, _ = intel_odometry
     code = main(['replay', str(bag_path), '--duration', '20', '--quiet',
                  '--report', str(tmp_path / 'r.json')])
     assert code in (0, 1)
-    replayed = json.loads((tmp_path / 'r.json').read_text())['replay']
+    replayed = strict_json((tmp_path / 'r.json').read_text())['replay']
     assert 15 < replayed['bag_seconds_replayed'] <= 20
     assert replayed['scan_messages'] < details['replay']['scan_messages']
 
@@ -418,7 +417,7 @@ def _changed(spec):
     return value
 
 
-def test_every_node_parameter_goes_through_params_file(round_trip, tmp_path, capsys):
+def test_every_node_parameter_goes_through_params_file(strict_json, round_trip, tmp_path, capsys):
     """The node's parameter file drives replay: every parameter is checked and reported."""
     import yaml
 
@@ -431,7 +430,7 @@ def test_every_node_parameter_goes_through_params_file(round_trip, tmp_path, cap
     code = main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
                  '--report', str(tmp_path / 'r.json')])
     assert code in (0, 1) and 'unknown parameter' not in capsys.readouterr().err
-    report = json.loads((tmp_path / 'r.json').read_text())
+    report = strict_json((tmp_path / 'r.json').read_text())
     used = report['node_parameters']
     assert used.keys() == values.keys()
     for name, value in values.items():
@@ -442,7 +441,7 @@ def test_every_node_parameter_goes_through_params_file(round_trip, tmp_path, cap
     # an option given on the command line wins over the file
     main(['replay', str(round_trip[0] / 'bag'), '--quiet', '--params-file', str(params),
           '--alpha', '0.02', '--report', str(tmp_path / 'r2.json')])
-    assert json.loads((tmp_path / 'r2.json').read_text())['parameters']['alpha'] == 0.02
+    assert strict_json((tmp_path / 'r2.json').read_text())['parameters']['alpha'] == 0.02
 
 
 def test_bad_parameter_files(round_trip, tmp_path, capsys):

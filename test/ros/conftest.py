@@ -30,6 +30,14 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 SETTLE_SECONDS = 1.0
 
 
+def _strict(text: str):
+    """A report parsed as strictly as its readers (jq, JavaScript, Go) do: no NaN, no
+    Infinity."""
+    def reject(name):
+        raise ValueError(f'{name} in a report is not JSON')
+    return json.loads(text, parse_constant=reject)
+
+
 @dataclass
 class NodeUnderTest:
     """The node's process and a probe node that publishes its inputs and keeps its reports."""
@@ -63,7 +71,7 @@ class NodeUnderTest:
         The node's report is its last one once it judged as many scans as replay, with the
         second stage caught up (it may lag while input streams in)."""
         code = main(['replay', str(bag), '--quiet', '--report', str(out)])
-        report = json.loads(out.read_text())
+        report = _strict(out.read_text())
         scans = report['summary']['scans']
         deadline = time.monotonic() + timeout
         while not (self.reports and self.reports[-1]['scans'] == scans
@@ -91,7 +99,7 @@ def node_under_test(tmp_path, monkeypatch):
         rclpy.init(context=context)
         node = NodeUnderTest(process, Node('probe', context=context))
         node.probe.create_subscription(String, '/map_consistency/report',
-                                       lambda m: node.reports.append(json.loads(m.data)),
+                                       lambda m: node.reports.append(_strict(m.data)),
                                        LATCHED)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node.probe)
