@@ -48,9 +48,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='map-consistency',
         description=__doc__.split('\n\n')[0],
-        epilog=f'{EXIT_CODES} The live ROS 2 node is a separate command: map_consistency_node --ros-args '
-               '--params-file config/map_consistency.yaml (topics, services, parameters: '
-               'docs/node.md). Every subcommand takes --help.',
+        epilog=f'{EXIT_CODES} The live ROS 2 node is a separate command: map_consistency_node '
+               '--ros-args --params-file config/map_consistency.yaml (topics, services, '
+               'parameters: docs/node.md). Every subcommand takes --help.',
     )
     parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
     parser.add_argument('--debug', action='store_true', help=_DEBUG_HELP)
