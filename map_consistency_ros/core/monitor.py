@@ -126,6 +126,7 @@ class MonitorSnapshot:
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
     dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
     poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
+    estimate_stamp: float = math.nan  # the estimate these poses are (MonitorFeed.snapshot)
 
     @property
     def keyframe_count(self) -> int:

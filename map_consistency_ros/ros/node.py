@@ -163,7 +163,7 @@ class MapConsistencyNode(Node):
         self._retuning = threading.Lock()
         self._calls = 0  # service calls being answered, for the shutdown to wait for
         self._tuner: threading.Thread | None = None
-        self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
+        self._snapshot = self._feed.snapshot()  # replaced whole by the worker
         self._serial = 0  # counts snapshots: a verdict never replaces one of a newer snapshot
         self._verdict_serial = -1
         self._marker_updates = MarkerUpdates()  # used under _publishing
@@ -453,7 +453,7 @@ class MapConsistencyNode(Node):
 
     def _take_snapshot(self) -> None:
         """The monitor's current state becomes the one published (worker thread)."""
-        snapshot = self._feed.monitor.snapshot()
+        snapshot = self._feed.snapshot()
         with self._publishing:
             self._snapshot, self._serial = snapshot, self._serial + 1
 
@@ -585,6 +585,7 @@ class MapConsistencyNode(Node):
             content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
                                 paper_consistent=assessment.result.consistent,
                                 judged_keyframes=judged.keyframe_count,
+                                judged_stamp=judged.estimate_stamp,
                                 inconsistent_stamps=judged.stamps[
                                     assessment.result.inconsistent]))
             self._verdict_content = (self._verdict, plain(content))
