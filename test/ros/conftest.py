@@ -96,12 +96,14 @@ def node_under_test(tmp_path, monkeypatch):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path / 'ros_log'))
     started: list[tuple[NodeUnderTest, Context, SingleThreadedExecutor, threading.Thread]] = []
+    processes: list[subprocess.Popen] = []
 
     def start(*ros_args: str) -> NodeUnderTest:
         process = subprocess.Popen(
             [sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args', *ros_args],
             cwd=REPO, env=dict(os.environ), stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL)
+        processes.append(process)  # stopped below even if the probe never starts
         context = Context()
         rclpy.init(context=context)
         node = NodeUnderTest(process, Node('probe', context=context))
@@ -116,13 +118,20 @@ def node_under_test(tmp_path, monkeypatch):
         return node
 
     yield start
-    for node, context, executor, spinner in started:
-        executor.shutdown()
-        node.probe.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=5)
-        node.process.terminate()
-        node.process.wait(timeout=10)
+    try:
+        for node, context, executor, spinner in started:
+            executor.shutdown()
+            node.probe.destroy_node()
+            rclpy.shutdown(context=context)
+            spinner.join(timeout=5)
+    finally:
+        for process in processes:
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=10)
 
 
 def assert_node_agrees(node_report: dict, report: dict, code: int) -> None:
