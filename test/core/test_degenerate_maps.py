@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core import statistics
-from map_consistency_ros.core.explanation import (MISALIGNED, RegistrationCache, check_map,
+from map_consistency_ros.core.explanation import (MISALIGNED, ExplanationSettings,
+                                                  RegistrationCache, check_map,
                                                   explain)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.registration import register_submaps, surface_points
@@ -184,3 +185,35 @@ def test_scans_without_a_valid_beam(intel):
     ranges[:] = np.inf
     empty = check_map(ScanSet.from_ranges(ranges, poses, model))
     assert empty.consistent and empty.result.summary()['overlapping_pairs'] == 0
+
+
+def test_one_wall_seen_from_one_place_determines_no_slide_along_it():
+    # Collinear points (a robot facing a single long wall): the wall fixes the distance to it
+    # and the heading, never the slide along it; registration says so or its covariance does.
+    model = SensorModel(-math.pi / 4, math.pi / 360, 8.0)
+    angles = model.bearings(181)
+    poses = np.tile([0.0, 0.0, math.pi / 2], (10, 1))
+    poses[5:, 0] += 0.2  # the second visit displaced along the wall
+    ranges = np.tile(3.0 / np.cos(angles), (10, 1))
+    ranges += np.random.default_rng(0).normal(0.0, 0.005, ranges.shape)
+    scans = ScanSet.from_ranges(ranges, poses, model)
+    found = register_submaps(surface_points(scans.endpoints, scans.valid),
+                             np.array([[0, 5, 5, 10]]))
+    value = statistics.mahalanobis_squared(found.corrections, found.covariances)[0]
+    along = np.array([1.0, 0.0, 0.0])
+    assert (not found.determined[0] or np.isnan(value)
+            or along @ found.covariances[0] @ along > 50 * found.covariances[0, 1, 1])
+    # nothing on the wall shows the slide: no scan sees another's free space occupied
+    assert check_map(scans).consistent
+
+
+def test_submaps_of_single_scans(intel):
+    # block 1 and no margin: every registration sees one viewpoint on each side
+    log, model = intel
+    poses = displace(log.laser_poses[:SCANS], 150, SCANS, math.radians(1.0), np.zeros(2))
+    scans = ScanSet.from_ranges(log.ranges[:SCANS], poses, model)
+    settings = ExplanationSettings(block=1, margin=0)
+    assessment = explain(scans, check_consistency(scans), settings)
+    assert assessment.explained_pairs.size > 0
+    for region in assessment.misalignments:
+        assert region.registered is bool(np.isfinite(region.correction).all())
