@@ -1,4 +1,5 @@
 """Shared fixtures: the real datasets in ../shared/data beside the repository."""
+import json
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,18 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         raise FileNotFoundError(f'real datasets not found at {SHARED_DATA}')
     return SHARED_DATA
+
+
+def reject_constant(name: str):
+    """parse_constant of a strict JSON parser: NaN, Infinity and -Infinity are not JSON (jq,
+    JavaScript and Go reject a report holding one)."""
+    raise ValueError(f'{name} is not JSON')
+
+
+@pytest.fixture(scope='session')
+def strict_json():
+    """json.loads as strict as the parsers a report's readers use."""
+    return lambda text: json.loads(text, parse_constant=reject_constant)
 
 
 def rectangle_room_ranges(poses, beams=180, fov=3.141592653589793, width=8.0, height=5.0,

@@ -1,7 +1,9 @@
 """`map-consistency`: offline consistency checks, DCS tuning, bag replay and conversion.
 
 Each subcommand lives in its own module of this package with `add_arguments(parser)` and
-`run(args) -> int`. Exit codes: 0 consistent (or success), 1 inconsistent, 2 bad input.
+`run(args) -> int`. Exit codes: 0 consistent (or success), 1 inconsistent, 2 bad input, 3 an
+internal error (a fault of this program, never a verdict: a pipeline must not read it as
+"inconsistent").
 """
 from __future__ import annotations
 
@@ -10,11 +12,17 @@ import importlib
 import importlib.machinery
 import importlib.util
 import sys
+import traceback
 from importlib.metadata import PackageNotFoundError, version
 
 from map_consistency_ros.io.errors import InputError
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERNAL_ERROR = 3
+# a line break for the subcommands' raw help; the overview's formatter wraps it as it likes
+EXIT_CODES = ('Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input,\n'
+              '3 internal error (one line on stderr naming the input; its traceback with --debug).')
+_DEBUG_HELP = 'on an internal error (exit 3), print its traceback too'
 
 # (subcommand, module, one-line help)
 SUBCOMMANDS = [
@@ -40,12 +48,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='map-consistency',
         description=__doc__.split('\n\n')[0],
-        epilog='Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input. '
-               'The live ROS 2 node is a separate command: map_consistency_node --ros-args '
-               '--params-file config/map_consistency.yaml (topics, services, parameters: '
-               'docs/node.md). Every subcommand takes --help.',
+        epilog=f'{EXIT_CODES} The live ROS 2 node is a separate command: map_consistency_node '
+               '--ros-args --params-file config/map_consistency.yaml (topics, services, '
+               'parameters: docs/node.md). Every subcommand takes --help.',
     )
     parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
+    parser.add_argument('--debug', action='store_true', help=_DEBUG_HELP)
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
         if command is not None and name != command:
@@ -53,9 +61,15 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             continue
         module = importlib.import_module(f'map_consistency_ros.cli.{module_name}')
         sub = commands.add_parser(name, help=help_text, description=module.__doc__,
+                                  epilog=EXIT_CODES,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(sub)
-        sub.set_defaults(run=module.run)
+        # global, and taken after the subcommand too (SUPPRESS: absent here leaves the global)
+        sub.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                         help=_DEBUG_HELP)
+        # the positional arguments name the input in the line of an internal error
+        sub.set_defaults(run=module.run, inputs=[action.dest for action in sub._actions
+                                                 if not action.option_strings])
     return parser
 
 
@@ -105,6 +119,26 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 130
+    except Exception as error:  # noqa: BLE001 - any other exception is a fault of this program
+        if args.debug:
+            traceback.print_exc()
+        print(f'map-consistency {args.command}: internal error{_on_input(args)}: '
+              f'{type(error).__name__}: {_one_line(error)}', file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
+
+
+def _on_input(args: argparse.Namespace) -> str:
+    """' on INPUT' for the positional arguments of the subcommand ('' for none)."""
+    names = []
+    for dest in args.inputs:
+        value = getattr(args, dest, None)
+        names.extend(str(item) for item in (value if isinstance(value, list) else [value])
+                     if item is not None)
+    return f' on {" ".join(names)}' if names else ''
+
+
+def _one_line(error: BaseException) -> str:
+    return ' '.join(str(error).split()) or 'no message'
 
 
 if __name__ == '__main__':

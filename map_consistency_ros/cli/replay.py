@@ -153,7 +153,7 @@ class Replay:
             if isinstance(record, Scan) and progress is not None:
                 progress(self.stats.scans, total)
         self.stats.seconds = time.perf_counter() - started
-        return self.feed.monitor.snapshot()
+        return self.feed.snapshot()
 
     def _count(self, record) -> None:
         stats = self.stats
@@ -286,6 +286,9 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
                    'realtime_scans_per_second': replay.stats.realtime_rate,
                    'warnings': replay.stats.warnings},
         'keyframe_stamps': snapshot.stamps,
+        # the estimate the verdict judged, as the node's ~/report names it (feed.py)
+        'judged_stamp': snapshot.estimate_stamp,
+        'judged_keyframes': snapshot.keyframe_count,
         'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),
     }
     if feed.bridge_counts is not None:

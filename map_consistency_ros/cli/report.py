@@ -2,25 +2,25 @@
 from __future__ import annotations
 
 import csv
-import json
 from pathlib import Path
 
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
 from map_consistency_ros.core.explanation import Assessment
-from map_consistency_ros.core.reporting import (assessment_report, plain, result_report,
-                                                scan_names)
+from map_consistency_ros.core.reporting import (assessment_report, result_report, scan_names,
+                                                to_json)
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
            'format_summary']
 
 
 def write_json(path: str | Path, report: dict) -> None:
-    """Write `report` as indented JSON (numpy arrays and scalars become lists and numbers)."""
+    """Write `report` as indented strict JSON (numpy arrays and scalars become lists and
+    numbers, values that do not exist null: reporting.to_json)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(plain(report), indent=2) + '\n')
+    path.write_text(to_json(report, indent=2) + '\n')
 
 
 def write_pairs_csv(path: str | Path, result: ConsistencyResult,

@@ -3,7 +3,8 @@
 Searches Phi* = argmin M(Phi), the average pairwise inconsistency of the DCS solution
 (Mazuran et al., ICRA 2014, Section V): a grid over sqrt(Phi), then golden-section refinement.
 Prints Phi*, M(Phi*) and the statistical test's verdict on the map at Phi*, beside the map
-at Phi = 1. Exit code 0 when the map at Phi* is consistent, 1 when not, 2 on bad input.
+at Phi = 1. Exit code 0 when the map at Phi* is consistent, 1 when not, 2 on bad input, 3 on an
+internal error.
 
 input forms:
   GRAPH.g2o                 g2o SE(2) graph whose vertices carry ROBOTLASER1 lines (gm2dl)

@@ -316,17 +316,16 @@ def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np
               displacement: np.ndarray,
               settings: ExplanationSettings) -> np.ndarray:
     correction = registrations.corrections[task_of_pair]
-    covariance = registrations.covariances[task_of_pair]
-    determined = registrations.determined[task_of_pair]
+    # A covariance that is singular or not finite (a fit that left no residual, as between the
+    # identical scans of a robot standing still; a corridor) leaves the correction undetermined.
+    mahalanobis = statistics.mahalanobis_squared(registrations.corrections,
+                                                 registrations.covariances)[task_of_pair]
+    determined = registrations.determined[task_of_pair] & np.isfinite(mahalanobis)
     plausible = ((np.hypot(correction[:, 0], correction[:, 1]) <= settings.max_translation)
                  & (np.abs(np.degrees(correction[:, 2])) <= settings.max_rotation_deg))
     registered = determined & plausible
-    mahalanobis = np.full(len(task_of_pair), 0.0)
-    if registered.any():
-        information = np.linalg.inv(covariance[registered])
-        delta = correction[registered]
-        mahalanobis[registered] = np.einsum('ei,eij,ej->e', delta, information, delta)
-    significant = mahalanobis > statistics.chi_square_3_quantile(settings.significance)
+    significant = registered & (mahalanobis
+                                > statistics.chi_square_3_quantile(settings.significance))
     codes = np.full(len(task_of_pair), _CLASS_CODE[CHANGE], dtype=np.int64)
     codes[determined & ~plausible & ~passes] = _CLASS_CODE[UNREGISTERED]
     codes[registered & passes] = _CLASS_CODE[MINOR]

@@ -18,19 +18,25 @@ record did, including every warning, so the node and replay report the same prob
   scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
   (core/graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
   keyframe estimate.
+
+`estimate_stamp` names the estimate the monitor holds, so that a verdict says which one it
+judged (the node's ~/report and replay's report, `judged_stamp`): the header stamp of the last
+estimate that changed the map, or, for estimates without one (single poses, graph snapshots),
+its newest keyframe's stamp. `snapshot()` is the monitor's snapshot with it.
 """
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.graph_bridge import BridgeCounts, SlamToolboxBridge
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, UpdateSummary
+from map_consistency_ros.core.monitor import (ConsistencyMonitor, MonitorSettings,
+                                               MonitorSnapshot, UpdateSummary)
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
                                               PoseSample, Record, Scan)
@@ -213,6 +219,7 @@ class MonitorFeed:
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
+        self.estimate_stamp = math.nan  # (module docstring) NaN before any estimate
 
     def reset(self, reason: str) -> None:
         """Forget every scan, keyframe and constraint (a new SLAM session)."""
@@ -235,6 +242,10 @@ class MonitorFeed:
         """The slam_toolbox bridge's counts after its last snapshot (None for other sources)."""
         return None if self.bridge is None else self.bridge.counts
 
+    def snapshot(self) -> MonitorSnapshot:
+        """The monitor's snapshot, naming the estimate it holds (`estimate_stamp`)."""
+        return replace(self.monitor.snapshot(), estimate_stamp=self.estimate_stamp)
+
     def apply(self, record: Record) -> Applied:
         """Apply one record; bad content becomes a warning, never an exception."""
         if isinstance(record, Scan):
@@ -243,8 +254,7 @@ class MonitorFeed:
             if self.settings.pose_source != 'path':
                 return Applied(warnings=('a keyframe estimate was given while pose_source is '
                                          f'{self.settings.pose_source!r}; ignored',))
-            return self._update(lambda: self.monitor.update_trajectory(record.stamps,
-                                                                       record.poses))
+            return self._estimate(record.stamps, record.poses, record.stamp)
         if isinstance(record, GraphSnapshot):
             return self._graph(record)
         if isinstance(record, PoseSample):
@@ -256,6 +266,15 @@ class MonitorFeed:
                 return Applied(warnings=(f'constraints ignored: {error}',))
             return Applied()
         raise TypeError(f'not an input record: {type(record).__name__}')
+
+    def _estimate(self, stamps: np.ndarray, poses: np.ndarray, stamp: float) -> Applied:
+        """A keyframe estimate to the monitor; when it changed the map, its stamp (the newest
+        keyframe's where `stamp` is not finite) names the estimate from then on."""
+        applied = self._update(lambda: self.monitor.update_trajectory(stamps, poses))
+        if applied.summary is not None:
+            self.estimate_stamp = (float(stamp) if math.isfinite(stamp) else
+                                   float(np.max(stamps)) if len(stamps) else math.nan)
+        return applied
 
     def _update(self, step) -> Applied:
         try:
@@ -356,7 +375,7 @@ class MonitorFeed:
                             'left out')
         if not len(stamps):
             return Applied(warnings=tuple(warnings))
-        applied = self._update(lambda: self.monitor.update_trajectory(stamps, poses))
+        applied = self._estimate(stamps, poses, math.nan)
         return Applied(summary=applied.summary, warnings=tuple(warnings) + applied.warnings)
 
     def _pose(self, sample: PoseSample) -> Applied:
@@ -378,8 +397,8 @@ class MonitorFeed:
                 warnings.append(f'scan at {scan.stamp:.6f} skipped: {error}')
         if not placed:
             return Applied(warnings=tuple(warnings))
-        applied = self._update(lambda: self.monitor.update_trajectory(
-            np.array(self.keyframer.stamps), np.array(self.keyframer.poses)))
+        applied = self._estimate(np.array(self.keyframer.stamps),
+                                 np.array(self.keyframer.poses), math.nan)
         return Applied(summary=applied.summary, warnings=tuple(warnings) + applied.warnings)
 
 

@@ -135,6 +135,7 @@ class MonitorSnapshot:
     dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
     poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
     folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
+    estimate_stamp: float = math.nan  # the estimate these poses are (MonitorFeed.snapshot)
 
     @property
     def keyframe_count(self) -> int:

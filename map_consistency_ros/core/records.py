@@ -6,6 +6,7 @@ seconds, poses (x, y, yaw).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +27,13 @@ class Scan:
 @dataclass(frozen=True)
 class KeyframeEstimate:
     """The SLAM back-end's full current keyframe estimate (a Path, or a bridge's output):
-    each stamp (M,) is the stamp of the scan its keyframe was built from, poses (M, 3)."""
+    each stamp (M,) is the stamp of the scan its keyframe was built from, poses (M, 3).
+    `stamp` is the message's own (header) stamp: which estimate this is; NaN when unknown."""
 
     stamps: np.ndarray
     poses: np.ndarray
     frame_id: str = ''
+    stamp: float = math.nan
 
 
 @dataclass(frozen=True)

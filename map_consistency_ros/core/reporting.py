@@ -1,7 +1,9 @@
 """The machine-readable report of a verdict: the one format that the CLI's JSON files and the
-node's ~/report share (`plain` turns it into what json.dumps takes)."""
+node's ~/report share, and the one place it becomes text (`to_json`): strict JSON, which jq,
+JavaScript and Go parse, with null where a value does not exist (no NaN, no Infinity)."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -79,10 +81,16 @@ def plain(value):
         return [plain(item) for item in value]
     if isinstance(value, np.ndarray):
         return plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
+    if isinstance(value, np.generic):  # np.float64 NaN is a float NaN after item()
+        return plain(value.item())
     if isinstance(value, float) and not np.isfinite(value):
         return None
     if isinstance(value, Path):
         return str(value)
     return value
+
+
+def to_json(report, indent: int | None = None) -> str:
+    """`report` as strict JSON text: `plain` values, and a ValueError rather than a NaN or an
+    Infinity that slipped past it (no JSON parser but Python's would read the report)."""
+    return json.dumps(plain(report), indent=indent, allow_nan=False)

@@ -55,6 +55,37 @@ def chi_square_3_quantile(upper_tail: float) -> float:
     return high
 
 
+# A covariance whose smallest eigenvalue is below this share of its largest one does not
+# determine the correction in every direction (float64 resolves about 1e-16 of a matrix's scale).
+COVARIANCE_RCOND = 1e-12
+
+
+def mahalanobis_squared(delta: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """(E,) delta^T C^-1 delta of vectors delta (E, D) under covariances C (E, D, D); NaN where
+    C does not determine delta in every direction.
+
+    Undetermined: C or delta holds a non-finite number, or C is not symmetric positive definite
+    to `COVARIANCE_RCOND` of its largest eigenvalue (a zero matrix from a fit that left no
+    residual, a corridor that fixes nothing along its axis). Never raises for such a C, unlike
+    a matrix inverse.
+    """
+    delta = np.asarray(delta, dtype=np.float64)
+    covariance = np.asarray(covariance, dtype=np.float64)
+    values = np.full(delta.shape[0], np.nan)
+    finite = np.isfinite(covariance).all(axis=(1, 2)) & np.isfinite(delta).all(axis=1)
+    if not finite.any():
+        return values
+    symmetric = 0.5 * (covariance[finite] + np.swapaxes(covariance[finite], 1, 2))
+    eigenvalues, eigenvectors = np.linalg.eigh(symmetric)
+    largest = eigenvalues[:, -1]
+    regular = (largest > 0.0) & (eigenvalues[:, 0] > COVARIANCE_RCOND * largest)
+    along = np.einsum('eij,ei->ej', eigenvectors, delta[finite])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        squared = (along * along / eigenvalues).sum(axis=1)
+    values[np.flatnonzero(finite)[regular]] = squared[regular]
+    return values
+
+
 @njit(cache=True, error_model='numpy')
 def psi(distance_sum: float, point_count: float, scale: float) -> float:
     """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5);

@@ -148,8 +148,12 @@ def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
     frame_id = bytes(body[12:11 + header_frame]).decode('utf-8', errors='replace')
     count = int.from_bytes(body[count_at:count_at + 4], 'little')
     first = count_at + 4
+    # the header's stamp: sec (int32), nanosec (uint32) before its frame id
+    stamp = int.from_bytes(body[0:4], 'little', signed=True) + int.from_bytes(
+        body[4:8], 'little') * 1e-9
     if count == 0:
-        return KeyframeEstimate(stamps=np.zeros(0), poses=np.zeros((0, 3)), frame_id=frame_id)
+        return KeyframeEstimate(stamps=np.zeros(0), poses=np.zeros((0, 3)), frame_id=frame_id,
+                                stamp=stamp)
     if first + 12 > len(body):
         return None
     length = int.from_bytes(body[first + 8:first + 12], 'little')
@@ -169,7 +173,7 @@ def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
     values = np.concatenate([entry['values'] for entry in entries])
     yaw = se2.yaw_from_quaternion(*values[:, 3:].T)
     return KeyframeEstimate(stamps=stamps, poses=np.column_stack([values[:, :2], yaw]),
-                            frame_id=frame_id)
+                            frame_id=frame_id, stamp=stamp)
 
 
 def constraints_to_numpy(msg) -> np.ndarray:
@@ -360,7 +364,8 @@ def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
         return Scan(stamp=stamp, ranges=ranges, model=model, frame_id=msg.header.frame_id)
     if msgtype == PATH_TYPE:
         stamps, poses = path_to_numpy(msg)
-        return KeyframeEstimate(stamps=stamps, poses=poses, frame_id=msg.header.frame_id)
+        return KeyframeEstimate(stamps=stamps, poses=poses, frame_id=msg.header.frame_id,
+                                stamp=stamp_to_seconds(msg.header.stamp))
     if msgtype == CONSTRAINTS_TYPE:
         return Constraints(rows=constraints_to_numpy(msg))
     if msgtype == MARKER_ARRAY_TYPE:

@@ -10,7 +10,6 @@ so a DCS retune never blocks monitoring. The contract is in docs/node.md.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
@@ -45,7 +44,7 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.explanation import (Assessment, ExplanationSettings,
                                                   RegistrationCache, explain,
                                                   misaligned_endpoints)
-from map_consistency_ros.core.reporting import assessment_report, plain
+from map_consistency_ros.core.reporting import assessment_report, plain, to_json
 from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.core.feed import FeedSettings, MonitorFeed, warm_up
 from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
@@ -164,7 +163,7 @@ class MapConsistencyNode(Node):
         self._retuning = threading.Lock()
         self._calls = 0  # service calls being answered, for the shutdown to wait for
         self._tuner: threading.Thread | None = None
-        self._snapshot = self._feed.monitor.snapshot()  # replaced whole by the worker
+        self._snapshot = self._feed.snapshot()  # replaced whole by the worker
         self._serial = 0  # counts snapshots: a verdict never replaces one of a newer snapshot
         self._verdict_serial = -1
         self._marker_updates = MarkerUpdates()  # used under _publishing
@@ -454,7 +453,7 @@ class MapConsistencyNode(Node):
 
     def _take_snapshot(self) -> None:
         """The monitor's current state becomes the one published (worker thread)."""
-        snapshot = self._feed.monitor.snapshot()
+        snapshot = self._feed.snapshot()
         with self._publishing:
             self._snapshot, self._serial = snapshot, self._serial + 1
 
@@ -551,7 +550,7 @@ class MapConsistencyNode(Node):
         if changed_at is not None:
             self._latency = time.monotonic() - changed_at
             self._updates += 1
-        self._report.publish(String(data=json.dumps(self._report_dict())))
+        self._report.publish(String(data=to_json(self._report_dict())))
         self._publish_diagnostics()
 
     def _greet_marker_subscribers(self) -> None:
@@ -587,6 +586,7 @@ class MapConsistencyNode(Node):
             content.update(dict(assessment.result.summary(), consistent=assessment.consistent,
                                 paper_consistent=assessment.result.consistent,
                                 judged_keyframes=judged.keyframe_count,
+                                judged_stamp=judged.estimate_stamp,
                                 inconsistent_stamps=judged.stamps[
                                     assessment.result.inconsistent]))
             self._verdict_content = (self._verdict, plain(content))

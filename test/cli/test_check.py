@@ -1,6 +1,5 @@
 """`map-consistency check`: exit codes, outputs, and bad input without tracebacks."""
 import csv
-import json
 import subprocess
 import sys
 
@@ -11,7 +10,7 @@ from map_consistency_ros.cli.main import main
 from map_consistency_ros.core.viewpoints import viewpoint_rows
 
 
-def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
+def test_consistent_room_exits_0_and_writes_outputs(strict_json, room_log, tmp_path, capsys):
     path, poses, _ = room_log()
     report, plot, pairs = tmp_path / 'r.json', tmp_path / 'map.png', tmp_path / 'pairs.csv'
     code = main(['check', str(path), '--quiet', '--report', str(report), '--plot', str(plot),
@@ -21,7 +20,7 @@ def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
     # 40 scans 0.26 m and 0.16 rad apart: about every second one is a viewpoint (0.4 m)
     assert 'CONSISTENT' in out and 'scans                 19' in out
     assert 'viewpoints            19 of 40 laser records' in out
-    data = json.loads(report.read_text())
+    data = strict_json(report.read_text())
     assert data['verdict'] == 'consistent'
     assert data['scans']['id'] == viewpoint_rows(poses, 0.4, 0.4).tolist()
     assert data['laser_records'] == 40 and min(np.diff(data['scans']['id'])) == 2
@@ -36,7 +35,7 @@ def test_consistent_room_exits_0_and_writes_outputs(room_log, tmp_path, capsys):
     assert data['summary']['overlapping_pairs'] == len(rows)
 
 
-def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
+def test_displaced_room_exits_1_and_names_scans(strict_json, room_log, tmp_path, capsys):
     # One and a half laps: the displaced second half revisits the first (the second stage
     # needs independent registrations of the displaced stretch against what it revisits).
     t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
@@ -61,7 +60,7 @@ def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
     assert code == 1
     assert 'INCONSISTENT: 1 misaligned region (largest 0.' in out
     assert 'misaligned region     scans ' in out and 'dx -0.39 m' in out
-    content = json.loads(report.read_text())
+    content = strict_json(report.read_text())
     assert content['distorted'] is False and 0.0 <= content['local_distortion_m'] < 0.1
     (region,) = content['misalignments']
     assert min(region['scans']) >= 30 and max(region['reference_scans']) < 30
@@ -72,12 +71,12 @@ def test_displaced_room_exits_1_and_names_scans(room_log, tmp_path, capsys):
     assert explain.read_bytes()[:4] == b'\x89PNG'
 
 
-def test_alpha_option_reaches_the_report(room_log, tmp_path):
+def test_alpha_option_reaches_the_report(strict_json, room_log, tmp_path):
     path, _, _ = room_log()
     report = tmp_path / 'r.json'
     main(['check', str(path), '--quiet', '--alpha', '0.2', '--fov', '180', '--max-range', '6',
           '--report', str(report)])
-    data = json.loads(report.read_text())
+    data = strict_json(report.read_text())
     assert data['parameters']['alpha'] == 0.2
     assert data['sensor_model']['max_range'] == 6.0
 
@@ -112,12 +111,12 @@ def test_console_script_prints_no_traceback(tmp_path):
     assert 'Traceback' not in done.stderr and 'truncated FLASER' in done.stderr
 
 
-def test_every_keeps_record_positions_in_outputs(room_log, tmp_path):
+def test_every_keeps_record_positions_in_outputs(strict_json, room_log, tmp_path):
     path, _, _ = room_log()
     report, pairs = tmp_path / 'r.json', tmp_path / 'pairs.csv'
     assert main(['check', str(path), '--quiet', '--every', '3', '--report', str(report),
                  '--pairs-csv', str(pairs)]) == 0
-    data = json.loads(report.read_text())
+    data = strict_json(report.read_text())
     assert data['scans']['id'] == list(range(0, 40, 3)) and data['every'] == 3
     ids = {int(row[key]) for row in csv.DictReader(pairs.open()) for key in ('i', 'j')}
     assert ids and all(index % 3 == 0 for index in ids)

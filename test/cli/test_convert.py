@@ -1,5 +1,4 @@
 """`map-consistency convert`: CARMEN logs and g2o graphs into rosbag2 that replay like a run."""
-import json
 import math
 
 import numpy as np
@@ -206,13 +205,13 @@ def test_graph_constraints_after_each_loop_closure(graph_bag):
     np.testing.assert_allclose(loop[5:], [100.0, 0, 0, 100.0, 0, 400.0])
 
 
-def test_graph_replays_like_the_batch_test(graph_bag):
+def test_graph_replays_like_the_batch_test(strict_json, graph_bag):
     from map_consistency_ros.core.consistency import check_consistency
     from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
     folder, log, _ = graph_bag
     assert main(['replay', str(folder / 'bag'), '--quiet', '--report',
                  str(folder / 'r.json')]) in (0, 1)
-    report = json.loads((folder / 'r.json').read_text())
+    report = strict_json((folder / 'r.json').read_text())
     model = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 179, max_range=8.0)
     batch = check_consistency(ScanSet.from_ranges(log.ranges, log.laser_poses, model))
     assert report['summary']['tested_pairs'] == batch.tested_pair_count

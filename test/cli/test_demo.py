@@ -1,13 +1,12 @@
 """`map-consistency demo`: the bundled bag replays and writes its outputs."""
-import json
 
 from map_consistency_ros.cli.main import main
 
 
-def test_demo_replays_the_bundled_bag(tmp_path, capsys):
+def test_demo_replays_the_bundled_bag(strict_json, tmp_path, capsys):
     code = main(['demo', '--output', str(tmp_path), '--quiet'])
     out = capsys.readouterr().out
-    report = json.loads((tmp_path / 'report.json').read_text())
+    report = strict_json((tmp_path / 'report.json').read_text())
     assert code == (0 if report['verdict'] == 'consistent' else 1)
     # 290 keyframes, those within 0.4 m and 0.4 rad of the previous one folded into it
     viewpoints = report['summary']['scans']

@@ -1,5 +1,4 @@
 """`map-consistency evaluate` end to end on a small real suite, and its bad-input paths."""
-import json
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ SMALL = ['evaluate', '--datasets', 'orebro', '--part-size', '60', '--alphas', '0
          '--tolerances', '0.05', '0.1', '--seams', '1', '--workers', '1', '--quiet']
 
 
-def test_evaluate_writes_the_write_up(shared_data, tmp_path, capsys):
+def test_evaluate_writes_the_write_up(strict_json, shared_data, tmp_path, capsys):
     doc = tmp_path / 'docs' / 'evaluation.md'
     assert main([*SMALL, '--data', str(shared_data), '--doc', str(doc)]) == 0
     printed = capsys.readouterr().out
@@ -29,7 +28,7 @@ def test_evaluate_writes_the_write_up(shared_data, tmp_path, capsys):
         assert heading in text
     assert '](figures/evaluation_pareto.png)' in text
     assert (tmp_path / 'docs' / 'figures' / 'evaluation_pareto.png').stat().st_size > 10000
-    results = json.loads((tmp_path / 'docs' / 'figures' / 'evaluation.json').read_text())
+    results = strict_json((tmp_path / 'docs' / 'figures' / 'evaluation.json').read_text())
     assert [row[:4] for row in results['ours']['rows']] == [
         [0.01, 0.01, 0.05, 0], [0.01, 0.01, 0.05, 4], [1e-9, 0.01, 0.05, 0], [1e-9, 0.01, 0.05, 4]]
     assert {row[0] for row in results['baseline']['rows']} == {0.0, 0.05}

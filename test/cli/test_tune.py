@@ -1,5 +1,4 @@
 """`map-consistency tune`: the three input forms, outputs, exit codes and bad input."""
-import json
 
 import numpy as np
 import pytest
@@ -23,9 +22,9 @@ def built(shared_data, tmp_path_factory):
     return code, out
 
 
-def test_build_form_writes_graph_report_and_figures(built):
+def test_build_form_writes_graph_report_and_figures(strict_json, built):
     code, out = built
-    report = json.loads((out / 'tune.json').read_text())
+    report = strict_json((out / 'tune.json').read_text())
     assert code == (0 if report['verdict'] == 'consistent' else 1)
     profile = report['profile']
     best = int(np.argmin(profile['average_inconsistency']))
@@ -37,11 +36,11 @@ def test_build_form_writes_graph_report_and_figures(built):
         assert (out / figure).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
 
-def test_graph_form_gives_the_same_answer_as_the_build_form(built, capsys):
+def test_graph_form_gives_the_same_answer_as_the_build_form(strict_json, built, capsys):
     _, out = built
     code = main(['tune', str(out / 'graph.g2o'), '--report', str(out / 'again.json'), *FAST])
-    first = json.loads((out / 'tune.json').read_text())
-    again = json.loads((out / 'again.json').read_text())
+    first = strict_json((out / 'tune.json').read_text())
+    again = strict_json((out / 'again.json').read_text())
     assert again['phi'] == pytest.approx(first['phi'], rel=1e-12)
     np.testing.assert_allclose(again['poses'], first['poses'], atol=1e-9)
     assert code == (0 if again['verdict'] == 'consistent' else 1)
@@ -49,7 +48,7 @@ def test_graph_form_gives_the_same_answer_as_the_build_form(built, capsys):
     assert 'Phi* =' in printed and 'M(1)' in printed
 
 
-def test_scans_form_takes_the_scans_from_a_carmen_log(built, tmp_path):
+def test_scans_form_takes_the_scans_from_a_carmen_log(strict_json, built, tmp_path):
     _, out = built
     content = read_g2o(out / 'graph.g2o')
     log = tmp_path / 'scans.log'
@@ -64,7 +63,7 @@ def test_scans_form_takes_the_scans_from_a_carmen_log(built, tmp_path):
     write_g2o(bare, type(content)(graph=content.graph, vertex_ids=content.vertex_ids))
     code = main(['tune', str(bare), '--scans', str(log), '--report', str(tmp_path / 'r.json'),
                  *FAST])
-    report = json.loads((tmp_path / 'r.json').read_text())
+    report = strict_json((tmp_path / 'r.json').read_text())
     assert code in (0, 1) and len(report['poses']) == 31
 
 

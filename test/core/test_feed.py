@@ -65,6 +65,39 @@ def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
     assert refused.summary is None and "pose_source is 'odometry'" in refused.warnings[0]
 
 
+def test_the_estimate_stamp_names_the_last_estimate_that_changed_the_map(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed()
+    assert math.isnan(feed.snapshot().estimate_stamp)  # no estimate yet
+    for scan in _scan_records(stamps, ranges, model):
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1000.5))
+    assert feed.snapshot().estimate_stamp == 1000.5
+    # the same estimate again changes nothing: the verdict on it still judged 1000.5
+    assert feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1001.0)).summary is None
+    assert feed.snapshot().estimate_stamp == 1000.5
+    moved = poses.copy()
+    moved[SCANS // 2:, 0] += 0.5  # a loop closure moves half of the keyframes
+    feed.apply(KeyframeEstimate(stamps=stamps, poses=moved, stamp=1002.0))
+    snapshot = feed.snapshot()
+    assert snapshot.estimate_stamp == 1002.0
+    np.testing.assert_array_equal(snapshot.poses, feed.monitor.snapshot().poses)
+    # without a header stamp (a bridge's output): the newest keyframe's stamp
+    feed.apply(KeyframeEstimate(stamps=stamps, poses=poses))
+    assert feed.snapshot().estimate_stamp == stamps.max()
+
+
+def test_single_poses_name_their_estimate_by_the_newest_keyframe(intel):
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(settings=FeedSettings(pose_source='odometry', keyframe_distance=0.3,
+                                             keyframe_angle=0.2))
+    for scan, stamp, pose in zip(_scan_records(stamps, ranges, model), stamps, poses):
+        feed.apply(scan)
+        feed.apply(PoseSample(stamp=float(stamp), pose=pose))
+    snapshot = feed.snapshot()
+    assert snapshot.estimate_stamp == snapshot.stamps.max()
+
+
 @pytest.mark.parametrize('pose, problem', [
     ([math.nan, 0.0, 0.0], 'non-finite'), ([1e300, 0.0, 0.0], 'beyond max_pose_extent'),
     ([0.0, 0.0, math.nan], 'unusable quaternion')])

@@ -30,6 +30,14 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 SETTLE_SECONDS = 1.0
 
 
+def _strict(text: str):
+    """A report parsed as strictly as its readers (jq, JavaScript, Go) do: no NaN, no
+    Infinity."""
+    def reject(name):
+        raise ValueError(f'{name} in a report is not JSON')
+    return json.loads(text, parse_constant=reject)
+
+
 @dataclass
 class NodeUnderTest:
     """The node's process and a probe node that publishes its inputs and keeps its reports."""
@@ -60,17 +68,24 @@ class NodeUnderTest:
                                 timeout: float = 60.0) -> tuple[int, dict, dict]:
         """(replay's exit code, replay's report of `bag`, the node's report of the same state).
 
-        The node's report is its last one once it judged as many scans as replay, with the
-        second stage caught up (it may lag while input streams in)."""
+        The node's report is the newest whose verdict judged the map replay judged: the same
+        estimate (judged_stamp) with the same keyframes. Neither arrival order nor how far
+        the node's second stage lags on a busy machine changes which report that is; {} when
+        the node never judged that map within `timeout` seconds."""
         code = main(['replay', str(bag), '--quiet', '--report', str(out)])
-        report = json.loads(out.read_text())
-        scans = report['summary']['scans']
+        report = _strict(out.read_text())
+        judged = (report['judged_stamp'], report['judged_keyframes'])
+        assert judged[0] is not None, 'replay judged no estimate'
+
+        def same_map() -> dict | None:
+            return next((node_report for node_report in reversed(list(self.reports))
+                         if (node_report.get('judged_stamp'),
+                             node_report.get('judged_keyframes')) == judged), None)
+
         deadline = time.monotonic() + timeout
-        while not (self.reports and self.reports[-1]['scans'] == scans
-                   and self.reports[-1]['judged_keyframes'] == self.reports[-1]['keyframes']
-                   ) and time.monotonic() < deadline:
+        while same_map() is None and time.monotonic() < deadline:
             time.sleep(0.1)
-        return code, report, self.reports[-1] if self.reports else {}
+        return code, report, same_map() or {}
 
 
 @pytest.fixture
@@ -81,17 +96,19 @@ def node_under_test(tmp_path, monkeypatch):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_LOG_DIR', str(tmp_path / 'ros_log'))
     started: list[tuple[NodeUnderTest, Context, SingleThreadedExecutor, threading.Thread]] = []
+    processes: list[subprocess.Popen] = []
 
     def start(*ros_args: str) -> NodeUnderTest:
         process = subprocess.Popen(
             [sys.executable, '-m', 'map_consistency_ros.ros.node', '--ros-args', *ros_args],
             cwd=REPO, env=dict(os.environ), stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL)
+        processes.append(process)  # stopped below even if the probe never starts
         context = Context()
         rclpy.init(context=context)
         node = NodeUnderTest(process, Node('probe', context=context))
         node.probe.create_subscription(String, '/map_consistency/report',
-                                       lambda m: node.reports.append(json.loads(m.data)),
+                                       lambda m: node.reports.append(_strict(m.data)),
                                        LATCHED)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node.probe)
@@ -101,13 +118,20 @@ def node_under_test(tmp_path, monkeypatch):
         return node
 
     yield start
-    for node, context, executor, spinner in started:
-        executor.shutdown()
-        node.probe.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=5)
-        node.process.terminate()
-        node.process.wait(timeout=10)
+    try:
+        for node, context, executor, spinner in started:
+            executor.shutdown()
+            node.probe.destroy_node()
+            rclpy.shutdown(context=context)
+            spinner.join(timeout=5)
+    finally:
+        for process in processes:
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=10)
 
 
 def assert_node_agrees(node_report: dict, report: dict, code: int) -> None:

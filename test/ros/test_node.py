@@ -6,7 +6,6 @@ earlier one left: each starts from the node's ~/reset and builds the map it need
 """
 from __future__ import annotations
 
-import json
 import os
 import random
 import subprocess
@@ -422,7 +421,7 @@ def test_a_path_the_byte_reader_cannot_read_is_deserialized(mapped, intel):
     assert probe.status_value('scans') == str(SCANS)
 
 
-def test_wrong_loop_closure_turns_the_map_inconsistent(mapped, intel):
+def test_wrong_loop_closure_turns_the_map_inconsistent(strict_json, mapped, intel):
     probe = mapped
     log, model = intel
     stamps = log.timestamps[:SCANS]
@@ -455,9 +454,9 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(mapped, intel):
     # one publication, three topics: the probe may take them in any order
     _wait(lambda: probe.consistent and probe.consistent[-1] is False,
           what='~/consistent of the final estimate')
-    _wait(lambda: probe.reports and json.loads(probe.reports[-1])['consistent'] is False,
+    _wait(lambda: probe.reports and strict_json(probe.reports[-1])['consistent'] is False,
           what='~/report of the final estimate')
-    report = json.loads(probe.reports[-1])
+    report = strict_json(probe.reports[-1])
     assert report['paper_consistent'] is False
     # every update that changed the map is counted, and its latency is a plausible wait
     assert report['updates'] >= 2 and 0.0 < report['update_latency_s'] < TIMEOUT

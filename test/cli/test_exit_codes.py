@@ -1,0 +1,94 @@
+"""An internal error is exit 3 with one line on stderr naming the input, never exit 1 (an
+inconsistent map); its traceback only with --debug. The same for every subcommand."""
+import subprocess
+import sys
+
+import pytest
+
+from map_consistency_ros.cli import check
+from map_consistency_ros.cli.main import EXIT_INTERNAL_ERROR, main
+
+
+def _fail(*_, **__):
+    raise ZeroDivisionError('float division by zero\nin a kernel')
+
+
+@pytest.fixture
+def log(room_log):
+    path, _, _ = room_log()
+    return path
+
+
+def _lines(text):
+    return [line for line in text.splitlines() if line.strip()]
+
+
+@pytest.mark.parametrize('debug', [[], ['--debug']], ids=['plain', 'debug-global'])
+def test_an_internal_error_in_check_is_exit_3_with_one_line(log, monkeypatch, capsys, debug):
+    monkeypatch.setattr(check, 'check_map', _fail)
+    assert main([*debug, 'check', str(log), '--quiet']) == EXIT_INTERNAL_ERROR
+    err = capsys.readouterr().err
+    last = _lines(err)[-1]
+    assert last == (f'map-consistency check: internal error on {log}: ZeroDivisionError: '
+                    'float division by zero in a kernel')
+    if debug:
+        assert 'Traceback (most recent call last)' in err and '_fail' in err
+    else:
+        assert _lines(err) == [last]
+
+
+def test_debug_after_the_subcommand_prints_the_traceback(log, monkeypatch, capsys):
+    monkeypatch.setattr(check, 'check_map', _fail)
+    assert main(['check', str(log), '--quiet', '--debug']) == EXIT_INTERNAL_ERROR
+    assert 'Traceback (most recent call last)' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('command, module, target', [
+    (['tune', 'graph.g2o'], 'map_consistency_ros.cli.tune', 'run'),
+    (['replay', 'a.bag', 'b.bag'], 'map_consistency_ros.cli.replay', 'run'),
+    (['convert', 'in.log', 'out'], 'map_consistency_ros.cli.convert', 'run'),
+    (['evaluate'], 'map_consistency_ros.cli.evaluate', 'run'),
+    (['demo'], 'map_consistency_ros.cli.demo', 'run'),
+])
+def test_every_subcommand_maps_an_internal_error_to_3(command, module, target, monkeypatch,
+                                                     capsys):
+    import importlib
+    monkeypatch.setattr(importlib.import_module(module), target, _fail)
+    assert main(command) == EXIT_INTERNAL_ERROR
+    (line,) = _lines(capsys.readouterr().err)
+    assert line.startswith(f'map-consistency {command[0]}: internal error')
+    assert ' '.join(command[1:]) in line and line.endswith('ZeroDivisionError: float division '
+                                                            'by zero in a kernel')
+
+
+def test_the_console_entry_point_exits_3_on_an_internal_error(log, tmp_path):
+    # A real process: `check` with its registration made to fail, through the module's entry.
+    script = ('import sys\n'
+              'from map_consistency_ros.core import explanation\n'
+              'def broken(*args, **kwargs):\n'
+              '    raise RuntimeError("registration broke")\n'
+              'explanation.register_submaps = broken\n'
+              'from map_consistency_ros.cli.main import main\n'
+              'sys.exit(main(sys.argv[1:]))\n')
+    # the room fails the paper's test once half of it is displaced, so the second stage runs
+    displaced = tmp_path / 'displaced.log'
+    lines = log.read_text().splitlines(keepends=True)
+    shifted = []
+    for index, line in enumerate(lines):
+        tokens = line.split()
+        if index >= len(lines) // 2:
+            count = int(tokens[1])
+            for position in (2 + count, 5 + count):
+                tokens[position] = f'{float(tokens[position]) + 0.4:.6f}'
+        shifted.append(' '.join(tokens) + '\n')
+    displaced.write_text(''.join(shifted))
+    for debug in ([], ['--debug']):
+        done = subprocess.run([sys.executable, '-c', script, *debug, 'check', str(displaced),
+                               '--quiet'], capture_output=True, text=True, timeout=300)
+        assert done.returncode == EXIT_INTERNAL_ERROR, done.stderr
+        lines = _lines(done.stderr)
+        assert lines[-1] == (f'map-consistency check: internal error on {displaced}: '
+                             'RuntimeError: registration broke')
+        assert ('Traceback' in done.stderr) is bool(debug)
+        if not debug:
+            assert len(lines) == 1
