@@ -135,7 +135,8 @@ def test_bad_verdict_options_exit_2_with_one_line(room_log, capsys, option, valu
     assert message in err and len(err.splitlines()) == 1
 
 
-def test_the_same_real_map_at_two_densities_gets_the_same_verdict(shared_data, tmp_path):
+def test_the_same_real_map_at_two_densities_gets_the_same_verdict(strict_json, shared_data,
+                                                                   tmp_path):
     """Freiburg 079 recorded scan by scan (0.1 m apart) and every 5th scan (0.5 m): the same
     viewpoints' worth of map, the same verdict and about the same number of viewpoints."""
     log = shared_data / 'fr079' / 'freiburg-079-corrected.log.gz'
@@ -144,7 +145,7 @@ def test_the_same_real_map_at_two_densities_gets_the_same_verdict(shared_data, t
         report = tmp_path / f'every{every}.json'
         assert main(['check', str(log), '--quiet', '--every', str(every),
                      '--report', str(report)]) == 0
-        reports[every] = json.loads(report.read_text())
+        reports[every] = strict_json(report.read_text())
     dense, sparse = reports[1], reports[5]
     assert dense['verdict'] == sparse['verdict'] == 'consistent'
     assert dense['laser_records'] == 4791

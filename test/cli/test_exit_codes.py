@@ -83,8 +83,10 @@ def test_the_console_entry_point_exits_3_on_an_internal_error(log, tmp_path):
         shifted.append(' '.join(tokens) + '\n')
     displaced.write_text(''.join(shifted))
     for debug in ([], ['--debug']):
+        # every scan of the small room a viewpoint, as in test_check's displaced room
         done = subprocess.run([sys.executable, '-c', script, *debug, 'check', str(displaced),
-                               '--quiet'], capture_output=True, text=True, timeout=300)
+                               '--quiet', '--viewpoint-spacing', '0'], capture_output=True,
+                              text=True, timeout=300)
         assert done.returncode == EXIT_INTERNAL_ERROR, done.stderr
         lines = _lines(done.stderr)
         assert lines[-1] == (f'map-consistency check: internal error on {displaced}: '

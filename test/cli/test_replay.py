@@ -93,11 +93,11 @@ def test_round_trip_verdict(strict_json, round_trip):
     assert (folder / 'pairs.png').read_bytes()[:4] == b'\x89PNG'
 
 
-def test_round_trip_pairs(round_trip):
+def test_round_trip_pairs(strict_json, round_trip):
     folder = round_trip[0]
     # check names the viewpoints by record, replay by rank among its keyframes
     rank = {record: index for index, record in enumerate(
-        json.loads((folder / 'check.json').read_text())['scans']['id'])}
+        strict_json((folder / 'check.json').read_text())['scans']['id'])}
     checked = {(rank[i], rank[j]): row for (i, j), row in read_pairs(folder / 'check.csv').items()}
     replayed = read_pairs(folder / 'replay.csv')
     assert checked.keys() == replayed.keys() and len(checked) > 400
