@@ -63,6 +63,7 @@ CARMEN, GRAPH, ROS1_BAG, ROS2_BAG = 'carmen log', 'g2o graph', 'ros1 bag', 'ros2
 _SUFFIXES = {'.log': CARMEN, '.log.gz': CARMEN, '.clf': CARMEN, '.clf.gz': CARMEN,
              '.gfs': CARMEN, '.g2o': GRAPH, '.bag': ROS1_BAG, '.mcap': ROS2_BAG}
 _ROS2_METADATA = 'metadata.yaml'
+_THUMBNAIL_PIXELS = 240  # the longer side of a map's thumbnail on the HTML page
 
 # options of `batch` itself: never passed on to check / replay
 _OWN = ('inputs', 'workers', 'scheduler', 'csv', 'json', 'html', 'quiet', 'params_file',
@@ -91,10 +92,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='write DIR/index.html: a row and a thumbnail per map, linking to '
                              'its figure and JSON report (and the table as CSV and JSON)')
     output.add_argument('--quiet', action='store_true', help='no progress bar')
-    logs = parser.add_argument_group('logs and graphs (as check)')
-    logs.add_argument('--every', type=int, default=1, metavar='N',
-                      help='test every N-th laser record only (default %(default)s)')
-    options.add_sensor_arguments(logs)
+    parser.add_argument('--every', type=int, default=1, metavar='N',
+                        help='logs and graphs: test every N-th laser record only (default '
+                             '%(default)s)')
+    options.add_sensor_arguments(parser)
     replay.add_topic_arguments(parser)
     options.add_parameter_arguments(parser, FeedSettings, 'bags: poses and sensor (as replay)',
                                     skip=('pose_source', 'max_range'))
@@ -253,7 +254,7 @@ def _number(value: float) -> float | None:
 def _files(args: argparse.Namespace, judgement, scan_ids) -> dict[str, bytes]:
     """The map figure, a thumbnail of it and the JSON report that `check` / `replay` would
     write with --plot and --report."""
-    from matplotlib import image
+    from PIL import Image  # matplotlib's own dependency
     with tempfile.TemporaryDirectory(prefix='map-consistency-batch-') as folder:
         folder = Path(folder)
         args.report, args.plot = folder / 'report.json', folder / 'map.png'
@@ -261,7 +262,9 @@ def _files(args: argparse.Namespace, judgement, scan_ids) -> dict[str, bytes]:
         check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
                             scan_ids)
         thumbnail = io.BytesIO()
-        image.thumbnail(str(args.plot), thumbnail, scale=0.2)
+        with Image.open(args.plot) as picture:
+            picture.thumbnail((_THUMBNAIL_PIXELS, _THUMBNAIL_PIXELS))
+            picture.save(thumbnail, format='PNG')
         return {'figure': args.plot.read_bytes(), 'thumbnail': thumbnail.getvalue(),
                 'report': args.report.read_bytes()}
 
