@@ -137,7 +137,12 @@ def _on_dask(function: Callable, items: Sequence, arguments: tuple, scheduler: s
         raise InputError('--scheduler', "needs dask.distributed: pip install "
                                         "'map_consistency_ros[distributed]'") from None
     results: list = [None] * len(items)
-    with Client(scheduler) as client:  # OSError (exit 2) when nothing answers at the address
+    try:
+        client = Client(scheduler)
+    except (OSError, ValueError) as error:  # nothing answers (a timeout is an OSError), or
+        # the address is malformed
+        raise InputError(f'--scheduler {scheduler}', str(error)) from None
+    with client:
         futures = {client.submit(single_threaded_call, function, item, *arguments,
                                  pure=False): index for index, item in enumerate(items)}
         for done, future in enumerate(as_completed(futures), start=1):

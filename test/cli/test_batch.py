@@ -155,3 +155,9 @@ def test_dask_cluster_gives_the_table_of_the_local_pool(shared_data, tmp_path):
     assert [row['verdict'] for row in rows] == ['consistent', 'bad input', 'consistent']
     assert [row['scans'] for row in rows] == [237, None, 292]
     assert died[0] == 2 and isinstance(died[1], pool.WorkerDied)
+
+
+def test_a_scheduler_address_that_cannot_be_used_is_bad_input(room_log, capsys):
+    path, _, _ = room_log()
+    assert main(['batch', str(path), '--scheduler', 'not an address', '--quiet']) == 2
+    assert 'map-consistency batch: --scheduler not an address: ' in capsys.readouterr().err
