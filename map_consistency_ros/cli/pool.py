@@ -2,8 +2,9 @@
 *arguments)` for every item, in this process, in a local process pool, or on a Dask
 distributed cluster.
 
-Every job runs numba single-threaded: the jobs themselves already occupy the cores (one
-process per core locally; one thread per worker process on a cluster, see docs/batch.md).
+Every job in a pool or on a cluster runs numba single-threaded: the jobs themselves already
+occupy the cores (one process per core locally; one thread per worker process on a cluster,
+see docs/batch.md). In this process (one worker) numba keeps all its threads.
 
 A worker process that dies (killed, out of memory, a crash in compiled code) takes only its
 own item: the item comes back as a `WorkerDied` and the other items are still judged. In the
