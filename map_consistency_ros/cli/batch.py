@@ -80,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'and graphs; options given here override it')
     run = parser.add_argument_group('running')
     run.add_argument('--workers', type=int, default=None, metavar='N',
-                     help='local worker processes (default: one per core; 1: in this process)')
+                     help='local worker processes (default: one per core; 1: in this process; '
+                          'not used with --scheduler)')
     run.add_argument('--scheduler', metavar='ADDRESS',
                      help='run on the Dask distributed cluster of this scheduler '
                           '(tcp://host:8786); needs the [distributed] extra, and workers that '
@@ -289,6 +290,8 @@ def run(args: argparse.Namespace) -> int:
         for warning in replay.parameter_file_warnings(file_values):
             print(f'map-consistency batch: {args.params_file}: {warning}', file=sys.stderr)
     items = find_inputs(args.inputs)
+    if not items:  # empty folders: a pipeline must not pass on no maps at all
+        raise InputError(' '.join(args.inputs), 'no logs, graphs or bags found')
     figures = args.html is not None
     started = time.perf_counter()
     with ProgressBar('judging maps', enabled=not args.quiet) as progress:

@@ -161,3 +161,9 @@ def test_a_scheduler_address_that_cannot_be_used_is_bad_input(room_log, capsys):
     path, _, _ = room_log()
     assert main(['batch', str(path), '--scheduler', 'not an address', '--quiet']) == 2
     assert 'map-consistency batch: --scheduler not an address: ' in capsys.readouterr().err
+
+
+def test_no_map_at_all_is_bad_input(tmp_path, capsys):
+    (tmp_path / 'notes.txt').write_text('not a map')
+    assert main(['batch', str(tmp_path), '--quiet']) == 2
+    assert 'no logs, graphs or bags found' in capsys.readouterr().err
