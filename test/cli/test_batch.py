@@ -167,3 +167,38 @@ def test_no_map_at_all_is_bad_input(tmp_path, capsys):
     (tmp_path / 'notes.txt').write_text('not a map')
     assert main(['batch', str(tmp_path), '--quiet']) == 2
     assert 'no logs, graphs or bags found' in capsys.readouterr().err
+
+
+def _room_graph(room_log, path):
+    """The room of `room_log` as a g2o graph: a vertex per scan at its logged pose, odometry
+    edges, and each scan as a ROBOTLASER1 line (180 beams over 180 degrees, laser at the robot)."""
+    from map_consistency_ros.core import se2
+    _, poses, ranges = room_log()
+    lines = []
+    for index, (pose, scan) in enumerate(zip(poses, ranges)):
+        numbers = ' '.join(f'{value:.9f}' for value in pose)
+        lines.append(f'VERTEX_SE2 {index} {numbers}')
+        lines.append(f'ROBOTLASER1 0 {-np.pi / 2:.9f} {np.pi:.9f} {np.pi / 180:.9f} 80 0.01 0 '
+                     f'{scan.size} ' + ' '.join(f'{r:.4f}' for r in scan) +
+                     f' 0 {numbers} {numbers} 0 0 0 0 0 {index * 0.2:.3f} host {index * 0.2:.3f}')
+    for index in range(len(poses) - 1):
+        step = ' '.join(f'{value:.9f}' for value in se2.relative(poses[index], poses[index + 1]))
+        lines.append(f'EDGE_SE2 {index} {index + 1} {step} 100 0 0 100 0 1000')
+    path.write_text('\n'.join(lines) + '\n')
+    return path
+
+
+def test_a_graph_with_scans_is_judged_at_its_vertex_poses_as_check_judges_it(room_log,
+                                                                               tmp_path, capsys):
+    log, _, _ = room_log()
+    graph = _room_graph(room_log, tmp_path / 'room.g2o')
+    code = main(['batch', str(graph), str(log), '--workers', '1', '--quiet',
+                 '--json', str(tmp_path / 't.json')])
+    assert code == 0
+    rows = json.loads((tmp_path / 't.json').read_text())['maps']
+    assert [row['kind'] for row in rows] == ['g2o graph', 'carmen log']
+    assert rows[0]['scans'] == rows[1]['scans'] == 40
+    capsys.readouterr()
+    assert main(['check', str(graph), '--quiet']) == 0
+    assert _first_line(capsys) == f'{graph}: {rows[0]["summary_line"]}'
+    assert rows[0]['summary_line'] == rows[1]['summary_line']
