@@ -104,9 +104,11 @@ def measure_map(suite_map: SuiteMap, settings: MeasureSettings) -> MeasuredMap:
 
 
 def measure_suite(maps: Sequence[SuiteMap], settings: MeasureSettings, workers: int | None = None,
-                  progress: Progress | None = None) -> list[MeasuredMap]:
-    """measure_map over all maps with a process pool; results in the order of `maps`."""
-    return pooled(measure_map, maps, (settings,), workers, progress)
+                  progress: Progress | None = None,
+                  scheduler: str | None = None) -> list[MeasuredMap]:
+    """measure_map over all maps with a process pool (or on the Dask cluster of `scheduler`);
+    results in the order of `maps`."""
+    return pooled(measure_map, maps, (settings,), workers, progress, scheduler)
 
 
 def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParameters,
@@ -187,12 +189,13 @@ def two_stage_flags(item: tuple[SuiteMap, MeasuredMap], settings: MeasureSetting
 def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
                     settings: MeasureSettings, alphas: Sequence[float],
                     tolerances: Sequence[float], workers: int | None = None,
-                    progress: Progress | None = None) -> np.ndarray:
+                    progress: Progress | None = None,
+                    scheduler: str | None = None) -> np.ndarray:
     """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite
     (`measured`: measure_suite of `maps`)."""
     truth = np.array([item.inconsistent for item in maps], dtype=bool)
     flags = pooled(two_stage_flags, list(zip(maps, measured)),
-                   (settings, tuple(alphas), tuple(tolerances)), workers, progress)
+                   (settings, tuple(alphas), tuple(tolerances)), workers, progress, scheduler)
     rows = []
     for row, alpha in enumerate(alphas):
         for column, tolerance in enumerate(tolerances):
@@ -202,11 +205,11 @@ def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
 
 
 def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | None,
-           progress: Progress | None) -> list:
-    """function(map, *arguments) for every map on the runner `batch` uses too (cli/pool.py);
-    results in map order. A map whose worker process died stops the evaluation: its figures
-    would be wrong without it."""
-    results = pool.run_all(function, maps, arguments, workers, progress=progress)
+           progress: Progress | None, scheduler: str | None = None) -> list:
+    """function(map, *arguments) for every map on the runner `batch` uses too (cli/pool.py):
+    local processes, or the Dask cluster of `scheduler`; results in map order. A map whose
+    worker process died stops the evaluation: its figures would be wrong without it."""
+    results = pool.run_all(function, maps, arguments, workers, scheduler, progress)
     for item, result in zip(maps, results):
         if isinstance(result, pool.WorkerDied):
             raise RuntimeError(f'{getattr(item, "name", item)}: {result.message}')
