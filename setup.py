@@ -31,7 +31,11 @@ setup(
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
-        'test': ['pytest>=8', 'shapely>=2.0', 'gtsam==4.3.0', 'pyyaml'],
+        # `batch --scheduler`: the inputs judged on a Dask cluster (imported on that path only)
+        'distributed': ['dask[distributed]>=2024.1'],
+        # the test of `batch --scheduler` starts a Dask LocalCluster: CI runs it
+        'test': ['pytest>=8', 'shapely>=2.0', 'gtsam==4.3.0', 'pyyaml',
+                 'dask[distributed]>=2024.1'],
     },
     zip_safe=True,
     maintainer='map_consistency_ros maintainers',

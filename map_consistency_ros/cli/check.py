@@ -1,27 +1,32 @@
-"""Test the map of a CARMEN log for consistency, with the scans at the logged poses.
+"""Test the map of a CARMEN log (or of a g2o graph with scans) for consistency.
 
 Reads FLASER / ROBOTLASER1 records (plain or .gz), places every scan at its logged laser pose,
 runs the statistical test (Mazuran et al., ICRA 2014) and prints the verdict. The test runs on
 the viewpoints of the trajectory (--viewpoint-spacing, --viewpoint-turn): scans taken closer
 than that to the previous viewpoint, standing still among them, are folded into it, so a log
-recorded at the laser's rate gets the verdict of the same map keyframed. Scan indices in every
-output are the 0-based positions of the laser records in the file.
+recorded at the laser's rate gets the verdict of the same map keyframed. Scan indices in
+every output are the 0-based positions of the laser records in the file. A .g2o graph whose
+vertices carry ROBOTLASER1 lines is judged with its scans at the vertex poses as stored; its
+scans are then named by vertex id.
 
 examples:
   map-consistency check intel.gfs.log --max-range 8 --report out/intel.json --plot out/intel.png
   map-consistency check fr079-corrected.log.gz --pairs-csv out/pairs.csv
+  map-consistency check intel_graph.g2o --plot out/graph.png
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.explanation import Assessment, check_map
 from map_consistency_ros.core.scan_geometry import ScanSet
@@ -33,7 +38,9 @@ EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('log', type=Path, help='CARMEN log file (plain text or gzip)')
+    parser.add_argument('log', type=Path,
+                        help='CARMEN log file (plain text or gzip), or a .g2o graph with '
+                             'ROBOTLASER1 lines')
     parser.add_argument('--every', type=int, default=1, metavar='N',
                         help='test every N-th laser record only, for dense logs (indices in the '
                              'outputs stay record positions; default %(default)s)')
@@ -58,24 +65,41 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
                ) -> tuple[carmen.CarmenLog, np.ndarray, ScanSet]:
-    """Read the log and place the viewpoints among every `--every`-th scan; bad option values
-    become InputError.
+    """Read the log (or graph) and place the viewpoints among every `--every`-th scan; bad
+    option values become InputError.
 
-    Returns the log, the record positions of the scans tested, and the scans.
+    Returns the laser records, the names of the scans tested (record positions, or vertex ids
+    of a graph), and the scans.
     """
     if args.every < 1:
         raise InputError('options', f'--every must be at least 1, got {args.every}')
-    log = carmen.read_carmen_log(args.log)
-    selected = np.arange(0, log.scan_count, args.every)
-    selected = selected[viewpoint_rows(log.laser_poses[selected], parameters.viewpoint_spacing,
+    if is_graph(args.log):
+        # the graph reader brings scipy.sparse (the pose graph): only graphs pay for it
+        from map_consistency_ros.io.g2o import read_g2o
+        content = read_g2o(args.log)
+        log = content.laser
+        ranges = content.scan_ranges()  # InputError without exactly one scan per vertex
+        poses = se2.compose(content.graph.poses, content.laser_offset)
+        names = content.vertex_ids
+    else:
+        log = carmen.read_carmen_log(args.log)
+        ranges, poses = log.ranges, log.laser_poses
+        names = np.arange(log.scan_count)
+    selected = np.arange(0, len(ranges), args.every)
+    selected = selected[viewpoint_rows(poses[selected], parameters.viewpoint_spacing,
                                        parameters.viewpoint_turn)]
     try:
         model = carmen.sensor_model(log, fov=options.fov_radians(args),
                                     max_range=args.max_range, range_min=args.range_min)
-        scans = ScanSet.from_ranges(log.ranges[selected], log.laser_poses[selected], model)
+        scans = ScanSet.from_ranges(ranges[selected], poses[selected], model)
     except ValueError as error:
         raise InputError(str(args.log), str(error)) from None
-    return log, selected, scans
+    return log, names[selected], scans
+
+
+def is_graph(path: Path) -> bool:
+    """Whether `check` reads `path` as a g2o graph rather than a CARMEN log."""
+    return Path(path).suffix.lower() == '.g2o'
 
 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
@@ -104,7 +128,24 @@ def verdict_settings(args: argparse.Namespace):
         raise InputError('options', str(error)) from None
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class Judgement:
+    """Both stages' verdict on one map, with what the outputs are written from."""
+
+    assessment: Assessment
+    scans: ScanSet
+    scan_ids: np.ndarray  # names of the scans in every output
+    details: dict  # the report's fields beside the verdict
+    seconds: float  # the test and its explanation, without reading the input
+
+    @property
+    def consistent(self) -> bool:
+        return self.assessment.consistent
+
+
+def judge(args: argparse.Namespace) -> Judgement:
+    """Read the input named by parsed `check` options and judge its map (the one code path
+    of `check` and of `batch` for logs and graphs)."""
     parameters, explanation = verdict_settings(args)
     log, selected, scans = load_scans(args, parameters)
     started = time.perf_counter()
@@ -113,9 +154,6 @@ def run(args: argparse.Namespace) -> int:
         assessment = check_map(scans, parameters, explanation,
                                progress=None if args.quiet else progress)
     elapsed = time.perf_counter() - started
-    print(report.format_summary(assessment, str(args.log), selected))
-    print(f'  viewpoints            {selected.size} of {log.scan_count} laser records')
-    print(f'  test time             {elapsed:.2f} s')
     model = scans.model
     details = {
         'source': str(args.log),
@@ -128,9 +166,19 @@ def run(args: argparse.Namespace) -> int:
         'every': args.every,
         'laser_records': log.scan_count,
     }
-    write_outputs(args, scans, assessment, details, selected)
+    return Judgement(assessment, scans, selected, details, elapsed)
+
+
+def run(args: argparse.Namespace) -> int:
+    judgement = judge(args)
+    print(report.format_summary(judgement.assessment, str(args.log), judgement.scan_ids))
+    print(f'  viewpoints            {judgement.scan_ids.size} of '
+          f'{judgement.details["laser_records"]} laser records')
+    print(f'  test time             {judgement.seconds:.2f} s')
+    write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
+                  judgement.scan_ids)
     for label, path in (('report', args.report), ('figure', args.plot),
                         ('pairs', args.pairs_csv), ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT
+    return EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT

@@ -95,6 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           '(default %(default)s)')
     out.add_argument('--workers', type=int, default=None,
                      help='processes measuring maps (default: all cores)')
+    out.add_argument('--scheduler', metavar='ADDRESS',
+                     help='measure the maps on the Dask distributed cluster of this scheduler '
+                          'instead (tcp://host:8786; docs/batch.md); the runtime table stays '
+                          'on this machine')
     out.add_argument('--no-runtime', action='store_true',
                      help='skip the runtime table (timing whole logs)')
     out.add_argument('--quiet', action='store_true', help='no progress bars')
@@ -492,18 +496,20 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     maps = build_suite(args.data, suite_parameters, args.datasets)
     with ProgressBar('measuring maps', enabled=not args.quiet) as progress:
-        measured = runner.measure_suite(maps, settings, args.workers, progress)
+        measured = runner.measure_suite(maps, settings, args.workers, progress, args.scheduler)
     ours = runner.sweep_ours(measured, settings.test, args.alphas, args.binomial_alphas,
                              args.local_alphas, args.flag_windows)
     baseline = runner.sweep_baseline(measured, settings.baseline, args.quantiles)
     with ProgressBar('two-stage verdicts', enabled=not args.quiet) as progress:
         two_stage = runner.sweep_two_stage(maps, measured, settings, args.two_stage_alphas,
-                                           args.tolerances, args.workers, progress)
+                                           args.tolerances, args.workers, progress,
+                                           args.scheduler)
     whole = None
     if not args.no_whole_logs:
         whole_maps = whole_logs.build(args.data, args.datasets, args.seams, args.seed)
         with ProgressBar('whole logs', enabled=not args.quiet) as progress:
-            whole = (whole_logs.judge_all(whole_maps, workers=args.workers, progress=progress),
+            whole = (whole_logs.judge_all(whole_maps, workers=args.workers, progress=progress,
+                                          scheduler=args.scheduler),
                      whole_maps)
     runtimes = []
     if not args.no_runtime:

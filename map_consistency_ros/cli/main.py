@@ -32,6 +32,7 @@ SUBCOMMANDS = [
     ('convert', 'convert', 'CARMEN log -> rosbag2 with /scan, /trajectory, /constraints'),
     ('evaluate', 'evaluate', 'compare the test with the Hähnel baseline on a labelled suite of real maps'),
     ('tune', 'tune', 'find the DCS parameter Phi giving the most consistent map of a pose graph'),
+    ('batch', 'batch', 'many logs, graphs and bags into one table, locally or on a Dask cluster'),
 ]
 
 

@@ -8,6 +8,7 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from matplotlib.collections import PathCollection  # noqa: E402
 
 from map_consistency_ros.core import statistics  # noqa: E402
 from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
@@ -36,7 +37,25 @@ def plot_map(ax, scans: ScanSet, assessment: Assessment | None = None, title: st
     ax.set_aspect('equal')
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
-    ax.legend(loc='upper right', fontsize=6, markerscale=4)
+    add_legend(ax)
+
+
+# Area (points^2) of every scatter symbol in a legend: the map draws end points far smaller
+# and changed places far larger (by point count), neither of which reads well in a legend.
+LEGEND_MARKER_AREA = 16.0
+
+
+def add_legend(ax) -> None:
+    """The legend below the axes, outside them, so that it never hides data, with every
+    scatter symbol at LEGEND_MARKER_AREA whatever its size on the map."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return
+    legend = ax.legend(handles, labels, loc='upper center', bbox_to_anchor=(0.5, -0.07),
+                       ncol=min(len(handles), 3), fontsize=6, frameon=True)
+    for handle in legend.legend_handles:
+        if isinstance(handle, PathCollection):
+            handle.set_sizes([LEGEND_MARKER_AREA])
 
 
 def _scan_points(scans: ScanSet, selected: np.ndarray) -> np.ndarray:

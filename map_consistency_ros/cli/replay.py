@@ -47,6 +47,7 @@ from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
 from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
 from map_consistency_ros.core.records import GraphSnapshot, KeyframeEstimate, PoseSample, Scan
+from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import PATH_TYPE, POSE_SOURCE_TYPES, time_message
@@ -63,17 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bags', type=Path, nargs='+', metavar='BAG',
                         help='ROS 1 .bag file, or rosbag2 folder (mcap / sqlite3); several files '
                              'of one recording may be given')
-    topics = parser.add_argument_group('topics')
-    topics.add_argument('--scan-topic', default='/scan', help='LaserScan topic (%(default)s)')
-    topics.add_argument('--pose-topic', default=None,
-                        help='Path, Odometry, PoseStamped or PoseWithCovarianceStamped topic '
-                             '(default /trajectory, else the only pose topic of the bag)')
-    topics.add_argument('--constraints-topic', default='/constraints',
-                        help='Float64MultiArray edge rows, optional (%(default)s)')
-    topics.add_argument('--graph-topic', default=BagTopics.graph,
-                        help="slam_toolbox's graph markers (MarkerArray), optional: with a "
-                             'PoseWithCovarianceStamped pose topic the poses and markers go to '
-                             'the slam_toolbox bridge (%(default)s)')
+    add_topic_arguments(parser)
     parser.add_argument('--params-file', type=Path, metavar='YAML',
                         help="the node's ROS 2 parameter file (config/map_consistency.yaml); "
                              'options given here override its values')
@@ -95,6 +86,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     play.add_argument('--subscribers', type=int, default=1, metavar='N',
                       help='wait (at most 10 s) until every topic has N subscribers, e.g. 2 for '
                            'a node and a recorder (default %(default)s)')
+
+
+def add_topic_arguments(parser: argparse.ArgumentParser) -> None:
+    """The bag topics replay reads."""
+    topics = parser.add_argument_group('topics')
+    topics.add_argument('--scan-topic', default='/scan', help='LaserScan topic (%(default)s)')
+    topics.add_argument('--pose-topic', default=None,
+                        help='Path, Odometry, PoseStamped or PoseWithCovarianceStamped topic '
+                             '(default /trajectory, else the only pose topic of the bag)')
+    topics.add_argument('--constraints-topic', default='/constraints',
+                        help='Float64MultiArray edge rows, optional (%(default)s)')
+    topics.add_argument('--graph-topic', default=BagTopics.graph,
+                        help="slam_toolbox's graph markers (MarkerArray), optional: with a "
+                             'PoseWithCovarianceStamped pose topic the poses and markers go to '
+                             'the slam_toolbox bridge (%(default)s)')
 
 
 @dataclass
@@ -196,18 +202,25 @@ def _first_frames(bag: BagReader) -> tuple[str, str] | None:
     return None
 
 
-def parameter_values(args: argparse.Namespace) -> dict:
-    """The parameter file's values overridden by the options given; unknown names in the
-    file are warned about on stderr with the closest valid name."""
-    from map_consistency_ros.ros.settings import PARAMETER_NAMES
-    base = {} if args.params_file is None else read_parameter_file(args.params_file)
-    for warning in unknown_names(base, PARAMETER_NAMES + ('use_sim_time',)):
-        print(f'map-consistency replay: {args.params_file}: {warning}', file=sys.stderr)
+def parameter_values(args: argparse.Namespace, base: dict | None = None) -> dict:
+    """The parameter file's values (or `base`, the values of a file read before) overridden by
+    the options given; unknown names in a file read here are warned about on stderr with the
+    closest valid name."""
+    if base is None:
+        base = {} if args.params_file is None else read_parameter_file(args.params_file)
+        for warning in parameter_file_warnings(base):
+            print(f'map-consistency replay: {args.params_file}: {warning}', file=sys.stderr)
     values = options.parameter_values(args, base)
     for name in ('bags', 'scan_topic', 'pose_topic', 'constraints_topic', 'graph_topic',
                  'params_file'):
         values.pop(name, None)  # options, not parameters
     return values
+
+
+def parameter_file_warnings(values: dict) -> list[str]:
+    """A line for each name of a parameter file that is no node parameter."""
+    from map_consistency_ros.ros.settings import PARAMETER_NAMES
+    return unknown_names(values, PARAMETER_NAMES + ('use_sim_time',))
 
 
 def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
@@ -304,28 +317,29 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
     return snapshot, replay, details
 
 
-def _print_summary(assessment: Assessment, replay: Replay, bag: BagReader) -> None:
+def _summary(assessment: Assessment, replay: Replay, bag: BagReader) -> str:
     stats = replay.stats
-    print(report.format_summary(assessment, bag.source))
-    print(f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
-          f'{stats.trajectories} trajectory updates')
-    print(f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
-          f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
-          f'{stats.realtime_rate:.1f} scans/s')
+    lines = [report.format_summary(assessment, bag.source),
+             f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
+             f'{stats.trajectories} trajectory updates',
+             f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
+             f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
+             f'{stats.realtime_rate:.1f} scans/s']
     counts = replay.feed.bridge_counts
     if counts is not None:
-        print(f'  slam_toolbox bridge   {stats.pose_messages} poses, {stats.graph_snapshots} '
-              f'graph snapshots: {counts.keyframes} keyframes, {counts.interpolated} headings '
-              f'interpolated, {counts.vertices_without_pose} vertices without a pose, '
-              f'{counts.pending_poses} poses without a vertex')
+        lines.append(f'  slam_toolbox bridge   {stats.pose_messages} poses, '
+                     f'{stats.graph_snapshots} graph snapshots: {counts.keyframes} keyframes, '
+                     f'{counts.interpolated} headings interpolated, '
+                     f'{counts.vertices_without_pose} vertices without a pose, '
+                     f'{counts.pending_poses} poses without a vertex')
     elif stats.trajectories == 0 and stats.pose_messages:
-        print(f'  keyframes             {stats.pose_messages} poses, keyframes every '
-              f'{replay.feed.settings.keyframe_distance:g} m / '
-              f'{replay.feed.settings.keyframe_angle:g} rad')
+        lines.append(f'  keyframes             {stats.pose_messages} poses, keyframes every '
+                     f'{replay.feed.settings.keyframe_distance:g} m / '
+                     f'{replay.feed.settings.keyframe_angle:g} rad')
     if stats.warnings:
-        print(f'  warnings              {len(stats.warnings)}')
-        for text in stats.warnings[:_SHOWN_WARNINGS]:
-            print(f'    {text}')
+        lines.append(f'  warnings              {len(stats.warnings)}')
+        lines.extend(f'    {text}' for text in stats.warnings[:_SHOWN_WARNINGS])
+    return '\n'.join(lines)
 
 
 def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: int = 1,
@@ -398,12 +412,30 @@ def run(args: argparse.Namespace) -> int:
     return replay_and_report(args, values)[0]
 
 
-def replay_and_report(args: argparse.Namespace,
-                      values: dict | None = None) -> tuple[int, ConsistencyMonitor]:
-    """Replay the bag, print the verdict, write the outputs asked for; the exit code and the
-    monitor in its final state."""
+@dataclass(frozen=True)
+class BagJudgement:
+    """Both stages' verdict on the final map of a replayed bag, with what the outputs are
+    written from."""
+
+    assessment: Assessment
+    scans: ScanSet
+    snapshot: MonitorSnapshot
+    details: dict  # the report's fields beside the verdict
+    summary: str  # the lines replay prints
+    monitor: ConsistencyMonitor  # in its final state
+    seconds: float  # the replay and the explanation, without opening the bag
+
+    @property
+    def consistent(self) -> bool:
+        return self.assessment.consistent
+
+
+def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
+    """Replay the bags named by parsed `replay` options and judge the final map (the one code
+    path of `replay` and of `batch` for bags)."""
     values = parameter_values(args) if values is None else values
     with open_bag(args, values) as bag:
+        started = time.perf_counter()
         snapshot, replay, details = replay_bag(args, bag, values)
         if snapshot.result is None:
             raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
@@ -412,14 +444,24 @@ def replay_and_report(args: argparse.Namespace,
         scans = snapshot.scans()
         assessment = explain(scans, snapshot.result,
                              settings_from_values(ExplanationSettings, values))
-        _print_summary(assessment, replay, bag)
-    check.write_outputs(args, scans, assessment, details)
+        summary = _summary(assessment, replay, bag)
+    return BagJudgement(assessment, scans, snapshot, details, summary, replay.feed.monitor,
+                        time.perf_counter() - started)
+
+
+def replay_and_report(args: argparse.Namespace,
+                      values: dict | None = None) -> tuple[int, ConsistencyMonitor]:
+    """Replay the bag, print the verdict, write the outputs asked for; the exit code and the
+    monitor in its final state."""
+    judgement = judge(args, values)
+    print(judgement.summary)
+    check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details)
     if args.stats_plot:
-        plots.save_statistics_figure(args.stats_plot, snapshot.result)
+        plots.save_statistics_figure(args.stats_plot, judgement.snapshot.result)
     for label, path in (('report', args.report), ('figure', args.plot),
                         ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
                         ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    code = EXIT_CONSISTENT if assessment.consistent else EXIT_INCONSISTENT
-    return code, replay.feed.monitor
+    code = EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT
+    return code, judgement.monitor

@@ -12,7 +12,7 @@ from map_consistency_ros.core.reporting import (assessment_report, result_report
                                                 to_json)
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
-           'format_summary']
+           'format_summary', 'region_text']
 
 
 def write_json(path: str | Path, report: dict) -> None:
@@ -61,14 +61,19 @@ def format_summary(assessment: Assessment, source: str,
         lines.append('  failed pairs explained ' + ', '.join(
             f'{count} {name}' for name, count in counts.items()))
     for region in assessment.misalignments[:_SHOWN_REGIONS]:
-        lines.append(f'  misaligned region     {_span(ids[region.scans])} against '
-                     f'{_span(ids[region.reference_scans])}: {_size(region)}')
+        lines.append(f'  misaligned region     {region_text(region, ids)}')
     if len(assessment.misalignments) > _SHOWN_REGIONS:
         lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions')
     return '\n'.join(lines)
 
 
 _SHOWN_REGIONS = 5
+
+
+def region_text(region, ids: np.ndarray) -> str:
+    """One misaligned region: its scans (named by `ids`), its reference scans, its size."""
+    return f'{_span(ids[region.scans])} against {_span(ids[region.reference_scans])}: ' \
+           f'{_size(region)}'
 
 
 def _span(ids: np.ndarray) -> str:

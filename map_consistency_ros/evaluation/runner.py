@@ -8,18 +8,15 @@ only re-runs the statistics.
 from __future__ import annotations
 
 import itertools
-import multiprocessing
-import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
-import numba
 import numpy as np
 
+from map_consistency_ros.cli import pool
 from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoods, map_statistic,
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
@@ -106,15 +103,12 @@ def measure_map(suite_map: SuiteMap, settings: MeasureSettings) -> MeasuredMap:
                        seconds_baseline=ended - middle)
 
 
-def _single_threaded() -> None:
-    # the pool already uses every core: numba threads inside each worker would only contend
-    numba.set_num_threads(1)
-
-
 def measure_suite(maps: Sequence[SuiteMap], settings: MeasureSettings, workers: int | None = None,
-                  progress: Progress | None = None) -> list[MeasuredMap]:
-    """measure_map over all maps with a process pool; results in the order of `maps`."""
-    return pooled(measure_map, maps, (settings,), workers, progress)
+                  progress: Progress | None = None,
+                  scheduler: str | None = None) -> list[MeasuredMap]:
+    """measure_map over all maps with a process pool (or on the Dask cluster of `scheduler`);
+    results in the order of `maps`."""
+    return pooled(measure_map, maps, (settings,), workers, progress, scheduler)
 
 
 def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParameters,
@@ -195,12 +189,13 @@ def two_stage_flags(item: tuple[SuiteMap, MeasuredMap], settings: MeasureSetting
 def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
                     settings: MeasureSettings, alphas: Sequence[float],
                     tolerances: Sequence[float], workers: int | None = None,
-                    progress: Progress | None = None) -> np.ndarray:
+                    progress: Progress | None = None,
+                    scheduler: str | None = None) -> np.ndarray:
     """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite
     (`measured`: measure_suite of `maps`)."""
     truth = np.array([item.inconsistent for item in maps], dtype=bool)
     flags = pooled(two_stage_flags, list(zip(maps, measured)),
-                   (settings, tuple(alphas), tuple(tolerances)), workers, progress)
+                   (settings, tuple(alphas), tuple(tolerances)), workers, progress, scheduler)
     rows = []
     for row, alpha in enumerate(alphas):
         for column, tolerance in enumerate(tolerances):
@@ -210,26 +205,14 @@ def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
 
 
 def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | None,
-            progress: Progress | None) -> list:
-    """function(map, *arguments) for every map in a process pool; results in map order."""
-    workers = workers or os.cpu_count() or 1
-    results: list = [None] * len(maps)
-    if workers == 1:
-        for done, item in enumerate(maps, start=1):
-            results[done - 1] = function(item, *arguments)
-            if progress:
-                progress(done, len(maps))
-        return results
-    # spawned, not forked: numba's thread pool in this process does not survive a fork
-    context = multiprocessing.get_context('spawn')
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_single_threaded) as pool:
-        futures = {pool.submit(function, item, *arguments): index
-                   for index, item in enumerate(maps)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            results[futures[future]] = future.result()
-            if progress:
-                progress(done, len(maps))
+           progress: Progress | None, scheduler: str | None = None) -> list:
+    """function(map, *arguments) for every map on the runner `batch` uses too (cli/pool.py):
+    local processes, or the Dask cluster of `scheduler`; results in map order. A map whose
+    worker process died stops the evaluation: its figures would be wrong without it."""
+    results = pool.run_all(function, maps, arguments, workers, scheduler, progress)
+    for item, result in zip(maps, results):
+        if isinstance(result, pool.WorkerDied):
+            raise RuntimeError(f'{getattr(item, "name", item)}: {result.message}')
     return results
 
 

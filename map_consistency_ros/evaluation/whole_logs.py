@@ -215,8 +215,10 @@ def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
 def judge_all(maps: list[WholeLogMap], parameters: ConsistencyParameters | None = None,
               settings: ExplanationSettings | None = None,
               baseline: BaselineParameters | None = None, workers: int | None = None,
-              progress: Progress | None = None) -> list[WholeLogResult]:
-    """`judge` over all maps in a process pool; results in the order of `maps`."""
+              progress: Progress | None = None,
+              scheduler: str | None = None) -> list[WholeLogResult]:
+    """`judge` over all maps in a process pool (or on the Dask cluster of `scheduler`);
+    results in the order of `maps`."""
     arguments = (parameters or ConsistencyParameters(), settings or ExplanationSettings(),
                  baseline or BaselineParameters())
-    return runner.pooled(judge, maps, arguments, workers, progress)
+    return runner.pooled(judge, maps, arguments, workers, progress, scheduler)

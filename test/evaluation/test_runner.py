@@ -39,6 +39,21 @@ def test_pool_gives_the_same_measures_in_order(maps, measured):
                                    theirs.likelihoods.log_likelihood)
 
 
+
+def test_a_dask_cluster_gives_the_same_measures_in_order(maps, measured):
+    from distributed import LocalCluster
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                           dashboard_address=None)
+    try:
+        remote = runner.measure_suite(maps[:3], SETTINGS, scheduler=cluster.scheduler_address)
+    finally:
+        cluster.close()
+    for mine, theirs in zip(measured[:3], remote, strict=True):
+        assert mine.name == theirs.name
+        np.testing.assert_array_equal(mine.measures.pairs, theirs.measures.pairs)
+        np.testing.assert_allclose(mine.measures.distance_sum, theirs.measures.distance_sum)
+        np.testing.assert_array_equal(mine.local.point_count, theirs.local.point_count)
+
 @pytest.mark.parametrize('alpha, binomial_alpha', [(0.01, 0.01), (1e-9, 1e-6)])
 def test_cached_verdicts_equal_the_full_check(maps, measured, alpha, binomial_alpha):
     parameters = ConsistencyParameters(alpha=alpha, binomial_alpha=binomial_alpha)

@@ -1,0 +1,418 @@
+"""Judge many maps at once: CARMEN logs, g2o graphs with scans and bags, into one table.
+
+Every input is judged exactly as `check` (logs, graphs) or `replay` (bags) would judge it, with
+the same defaults; the options given here apply to every input that takes them. Inputs are
+files, folders (searched recursively: *.log, *.log.gz, *.clf, *.gfs, *.g2o, *.bag, *.mcap, and
+rosbag2 folders, which hold a metadata.yaml) or glob patterns (quote them: 'runs/**/*.bag').
+
+The table (printed; --csv, --json) has one row per input: input, kind, verdict, summary line,
+the misaligned regions with their sizes, the number of changed places, the runtime (reading
+and judging, in the worker) and the error of an input that could not be judged. Inputs are
+judged on a local process pool (--workers) or on a Dask distributed cluster (--scheduler);
+see docs/batch.md. --html DIR writes an index page with a thumbnail per map, each linking to
+the map's figure and JSON report.
+
+Exit code: the worst over the inputs: 3 when a job failed unexpectedly (a bug, or a worker
+that died), else 2 when an input is bad, else 1 when a map is inconsistent, else 0. Inputs
+that fail are listed; the others are still judged.
+
+examples:
+  map-consistency batch data/*.log.gz runs/ --csv out/batch.csv --json out/batch.json
+  map-consistency batch 'nightly/**/*.bag' --params-file config/map_consistency.yaml \\
+      --html out/nightly
+  map-consistency batch logs/ --scheduler tcp://10.0.0.5:8786
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import glob
+import html
+import io
+import math
+import re
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from map_consistency_ros.cli import check, options, pool, replay, report
+from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.explanation import ExplanationSettings
+from map_consistency_ros.core.feed import FeedSettings
+from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.parameters import specs
+from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.parameter_file import read_parameter_file
+
+EXIT_CONSISTENT, EXIT_INCONSISTENT, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_INTERNAL_ERROR = 3  # a job raised unexpectedly or its worker died: a bug, not the input
+
+VERDICTS = {EXIT_CONSISTENT: 'consistent', EXIT_INCONSISTENT: 'inconsistent',
+            EXIT_BAD_INPUT: 'bad input', EXIT_INTERNAL_ERROR: 'internal error'}
+COLUMNS = ('input', 'kind', 'verdict', 'exit_code', 'scans', 'summary_line', 'regions',
+           'changed_places', 'runtime_seconds', 'error')
+
+# Kinds of input and the file names a folder search picks up; a file named explicitly with
+# another suffix is read as a CARMEN log, as `check` would.
+CARMEN, GRAPH, ROS1_BAG, ROS2_BAG = 'carmen log', 'g2o graph', 'ros1 bag', 'ros2 bag'
+_SUFFIXES = {'.log': CARMEN, '.log.gz': CARMEN, '.clf': CARMEN, '.clf.gz': CARMEN,
+             '.gfs': CARMEN, '.g2o': GRAPH, '.bag': ROS1_BAG, '.mcap': ROS2_BAG}
+_ROS2_METADATA = 'metadata.yaml'
+_THUMBNAIL_PIXELS = 240  # the longer side of a map's thumbnail on the HTML page
+
+# options of `batch` itself: never passed on to check / replay
+_OWN = ('inputs', 'workers', 'scheduler', 'csv', 'json', 'html', 'quiet', 'params_file',
+        'command', 'run')
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('inputs', nargs='+', metavar='INPUT',
+                        help='CARMEN logs, g2o graphs with ROBOTLASER1 lines, ROS 1 .bag files, '
+                             'rosbag2 folders; or folders / glob patterns holding them')
+    parser.add_argument('--params-file', type=Path, metavar='YAML',
+                        help="the node's ROS 2 parameter file (config/map_consistency.yaml): all "
+                             'of it for bags, its test, verdict and max_range values for logs '
+                             'and graphs; options given here override it')
+    run = parser.add_argument_group('running')
+    run.add_argument('--workers', type=int, default=None, metavar='N',
+                     help='local worker processes (default: one per core; 1: in this process; '
+                          'not used with --scheduler)')
+    run.add_argument('--scheduler', metavar='ADDRESS',
+                     help='run on the Dask distributed cluster of this scheduler '
+                          '(tcp://host:8786); needs the [distributed] extra, and workers that '
+                          'can import this package and read the inputs at the paths given')
+    output = parser.add_argument_group('output')
+    output.add_argument('--csv', type=Path, metavar='CSV', help='write the table as CSV')
+    output.add_argument('--json', type=Path, metavar='JSON', help='write the table as JSON')
+    output.add_argument('--html', type=Path, metavar='DIR',
+                        help='write DIR/index.html: a row and a thumbnail per map, linking to '
+                             'its figure and JSON report (and the table as CSV and JSON)')
+    output.add_argument('--quiet', action='store_true', help='no progress bar')
+    parser.add_argument('--every', type=int, default=1, metavar='N',
+                        help='logs and graphs: test every N-th laser record only (default '
+                             '%(default)s)')
+    options.add_sensor_arguments(parser)
+    replay.add_topic_arguments(parser)
+    options.add_parameter_arguments(parser, FeedSettings, 'bags: poses and sensor (as replay)',
+                                    skip=('pose_source', 'max_range'))
+    options.add_parameter_arguments(parser, MonitorSettings, 'bags: monitor (as replay)')
+    options.add_test_arguments(parser)
+    options.add_verdict_arguments(parser)
+
+
+# -- inputs ---------------------------------------------------------------------------------
+
+def _kind_of_file(path: Path) -> str | None:
+    name = path.name.lower()
+    for suffix, kind in _SUFFIXES.items():
+        if name.endswith(suffix):
+            return kind
+    return None
+
+
+def _in_folder(folder: Path) -> list[tuple[str, str]]:
+    if (folder / _ROS2_METADATA).is_file():
+        return [(str(folder), ROS2_BAG)]
+    found = []
+    for entry in sorted(folder.iterdir()):
+        if entry.is_dir():
+            found.extend(_in_folder(entry))
+        elif _kind_of_file(entry) is not None:
+            found.append((str(entry), _kind_of_file(entry)))
+    return found
+
+
+def find_inputs(arguments: list[str]) -> list[tuple[str, str]]:
+    """(path, kind) of every input named by files, folders and glob patterns, in the order
+    given (folders and patterns sorted), each once. A name that matches nothing is kept with
+    kind None: it is listed as a bad input."""
+    found: list[tuple[str, str | None]] = []
+    for argument in arguments:
+        path = Path(argument)
+        if path.is_dir():
+            found.extend(_in_folder(path))
+        elif path.exists():
+            found.append((argument, _kind_of_file(path) or CARMEN))
+        else:
+            matches = sorted(glob.glob(argument, recursive=True))
+            if not matches:
+                found.append((argument, None))
+            for match in matches:
+                match_path = Path(match)
+                if match_path.is_dir():
+                    found.extend(_in_folder(match_path))
+                else:
+                    found.append((match, _kind_of_file(match_path) or CARMEN))
+    unique, seen = [], set()
+    for path, kind in found:
+        key = str(Path(path).resolve())
+        if key not in seen:
+            seen.add(key)
+            unique.append((path, kind))
+    return unique
+
+
+# -- one input ------------------------------------------------------------------------------
+
+def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
+                figures: bool) -> dict:
+    """One row of the table: `item` (path, kind) judged through `check` or `replay` with the
+    options `given` on the command line over the parameter file's `file_values`. With
+    `figures`, the row also carries the map figure, its thumbnail and the JSON report as bytes
+    under 'files' (the workers need not share a file system with the caller). Runs in a worker:
+    every exception becomes the row's error."""
+    path, kind = item
+    row = {'input': path, 'kind': kind or 'missing', 'scans': None, 'summary_line': '',
+           'regions': [], 'changed_places': None, 'error': None}
+    started = time.perf_counter()
+    try:
+        if kind is None:
+            raise InputError(path, 'no such file, folder or matching pattern')
+        if kind in (ROS1_BAG, ROS2_BAG):
+            args = _namespace('replay', path, given)
+            values = replay.parameter_values(args, file_values)
+            judgement = replay.judge(args, values)
+            scan_ids = None
+        else:
+            args = _namespace('check', path, given, _check_file_values(file_values))
+            judgement = check.judge(args)
+            scan_ids = judgement.scan_ids
+        row['runtime_seconds'] = time.perf_counter() - started
+        _describe(row, judgement.assessment, scan_ids)
+        code = EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT
+        if figures:
+            row['files'] = _files(args, judgement, scan_ids)
+    except (InputError, OSError) as error:  # what `check` / `replay` exit 2 on
+        code = EXIT_BAD_INPUT
+        row['error'] = str(error) if isinstance(error, InputError) else \
+            f'{error.filename or path}: {error.strerror or error}'
+    except Exception as error:  # noqa: BLE001 (a bug must not stop the other inputs)
+        code = EXIT_INTERNAL_ERROR
+        frame = traceback.extract_tb(error.__traceback__)[-1]
+        row['error'] = (f'internal error: {type(error).__name__}: {error} '
+                        f'({Path(frame.filename).name}:{frame.lineno})')
+    row.setdefault('runtime_seconds', time.perf_counter() - started)
+    row.update(verdict=VERDICTS[code], exit_code=code)
+    return row
+
+
+def _namespace(command: str, path: str, given: dict, base: dict | None = None
+               ) -> argparse.Namespace:
+    """The options `command` would have parsed for `path`: its own defaults, then `base`, then
+    the options given to batch that `command` takes."""
+    parser = argparse.ArgumentParser(prog=f'map-consistency {command}')
+    module = check if command == 'check' else replay
+    module.add_arguments(parser)
+    args = parser.parse_args([path, '--quiet'])
+    takes = {action.dest for action in parser._actions}  # noqa: SLF001 (argparse has no API)
+    for name, value in {**(base or {}), **given}.items():
+        if name in takes and name not in _OWN:
+            setattr(args, name, value)
+    if command == 'replay':
+        args.bags = [Path(path)]
+    else:
+        args.log = Path(path)
+    return args
+
+
+def _check_file_values(file_values: dict) -> dict:
+    """The parameter file's values that mean the same for `check`: the test, the verdict and
+    the usable range."""
+    names = {spec.name for group in (ConsistencyParameters, ExplanationSettings)
+             for spec in specs(group)} | {'max_range'}
+    return {name: value for name, value in file_values.items() if name in names}
+
+
+def _describe(row: dict, assessment, scan_ids: np.ndarray | None) -> None:
+    result = assessment.result
+    ids = report.scan_names(result, scan_ids)
+    row['scans'] = int(result.scan_count)
+    row['summary_line'] = assessment.summary_line()
+    row['regions'] = [{
+        'scans': _span(ids[region.scans]),
+        'reference_scans': _span(ids[region.reference_scans]),
+        'displacement_m': _number(region.displacement) if region.registered else None,
+        'registered': bool(region.registered),
+        'text': report.region_text(region, ids),
+    } for region in assessment.misalignments]
+    row['changed_places'] = len(assessment.changes)
+
+
+def _span(ids: np.ndarray) -> list[int]:
+    """[first, last, count] of a set of scan names."""
+    return [int(ids.min()), int(ids.max()), int(ids.size)] if ids.size else [0, 0, 0]
+
+
+def _number(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _files(args: argparse.Namespace, judgement, scan_ids) -> dict[str, bytes]:
+    """The map figure, a thumbnail of it and the JSON report that `check` / `replay` would
+    write with --plot and --report."""
+    from PIL import Image  # matplotlib's own dependency
+    with tempfile.TemporaryDirectory(prefix='map-consistency-batch-') as folder:
+        folder = Path(folder)
+        args.report, args.plot = folder / 'report.json', folder / 'map.png'
+        args.pairs_csv = args.explain = None
+        check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
+                            scan_ids)
+        thumbnail = io.BytesIO()
+        with Image.open(args.plot) as picture:
+            picture.thumbnail((_THUMBNAIL_PIXELS, _THUMBNAIL_PIXELS))
+            picture.save(thumbnail, format='PNG')
+        return {'figure': args.plot.read_bytes(), 'thumbnail': thumbnail.getvalue(),
+                'report': args.report.read_bytes()}
+
+
+# -- the batch ------------------------------------------------------------------------------
+
+def _given(args: argparse.Namespace) -> dict:
+    """The options given on the command line that check / replay take (the test and verdict
+    options are only in the namespace when given; the others carry check's defaults)."""
+    values = {name: value for name, value in vars(args).items() if name not in _OWN}
+    if values.get('max_range') is None:
+        values.pop('max_range', None)  # each command's own default
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.workers < 1:
+        raise InputError('options', f'--workers must be at least 1, got {args.workers}')
+    file_values = {}
+    if args.params_file is not None:
+        file_values = read_parameter_file(args.params_file)
+        for warning in replay.parameter_file_warnings(file_values):
+            print(f'map-consistency batch: {args.params_file}: {warning}', file=sys.stderr)
+    items = find_inputs(args.inputs)
+    if not items:  # empty folders: a pipeline must not pass on no maps at all
+        raise InputError(' '.join(args.inputs), 'no logs, graphs or bags found')
+    figures = args.html is not None
+    started = time.perf_counter()
+    with ProgressBar('judging maps', enabled=not args.quiet) as progress:
+        results = pool.run_all(judge_input, items, (_given(args), file_values, figures),
+                               workers=args.workers, scheduler=args.scheduler,
+                               progress=progress)
+    rows = [_died(item, result) if isinstance(result, pool.WorkerDied) else result
+            for item, result in zip(items, results)]
+    files = [row.pop('files', None) for row in rows]
+    elapsed = time.perf_counter() - started
+    print(format_table(rows))
+    print(f'{len(rows)} inputs in {elapsed:.1f} s: ' + ', '.join(
+        f'{sum(row["exit_code"] == code for row in rows)} {name}'
+        for code, name in VERDICTS.items()))
+    for path, writer in ((args.csv, write_csv), (args.json, write_table_json)):
+        if path is not None:
+            writer(path, rows)
+            print(f'  {path}')
+    if figures:
+        index = write_html(args.html, rows, files)
+        print(f'  {index}')
+    return max((row['exit_code'] for row in rows), default=EXIT_CONSISTENT)
+
+
+def _died(item: tuple[str, str | None], died: pool.WorkerDied) -> dict:
+    path, kind = item
+    return {'input': path, 'kind': kind or 'missing', 'verdict': VERDICTS[EXIT_INTERNAL_ERROR],
+            'exit_code': EXIT_INTERNAL_ERROR, 'scans': None, 'summary_line': '', 'regions': [],
+            'changed_places': None, 'runtime_seconds': None,
+            'error': f'internal error: {died.message}'}
+
+
+# -- outputs --------------------------------------------------------------------------------
+
+def _regions_text(row: dict) -> str:
+    return '; '.join(region['text'] for region in row['regions'])
+
+
+def format_table(rows: list[dict]) -> str:
+    """The table for the terminal: verdict, runtime and input, then the summary or error."""
+    lines = []
+    for row in rows:
+        runtime = row['runtime_seconds']
+        seconds = '' if runtime is None else f'{runtime:7.1f} s'
+        lines.append(f'{row["verdict"]:<15} {seconds:>9}  {row["input"]}')
+        detail = row['error'] or row['summary_line']
+        if detail:
+            lines.append(f'{"":<27}{detail}')
+    return '\n'.join(lines)
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """The table as CSV, regions as one text cell ('; ' between regions)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, 'w', newline='') as stream:
+        writer = csv.writer(stream)
+        writer.writerow(COLUMNS)
+        for row in rows:
+            writer.writerow(['' if row[name] is None else
+                             _regions_text(row) if name == 'regions' else row[name]
+                             for name in COLUMNS])
+
+
+def write_table_json(path: Path, rows: list[dict]) -> None:
+    """The table as JSON: {'maps': [row, ...]} with the columns of COLUMNS."""
+    report.write_json(path, {'maps': [{name: row[name] for name in COLUMNS} for row in rows]})
+
+
+def _slug(index: int, path: str) -> str:
+    name = re.sub(r'[^A-Za-z0-9._-]+', '_', Path(path.rstrip('/')).name) or 'input'
+    return f'{index:03d}_{name}'
+
+
+def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path:
+    """DIR/index.html, DIR/maps/* (figure, thumbnail, report per map), DIR/batch.csv/.json."""
+    maps = folder / 'maps'
+    maps.mkdir(parents=True, exist_ok=True)
+    write_csv(folder / 'batch.csv', rows)
+    write_table_json(folder / 'batch.json', rows)
+    body = []
+    for index, (row, content) in enumerate(zip(rows, files)):
+        slug = _slug(index, row['input'])
+        cells = [html.escape(row['input']), html.escape(row['kind'])]
+        if content:
+            for suffix, key in (('.png', 'figure'), ('.thumb.png', 'thumbnail'),
+                                ('.json', 'report')):
+                (maps / f'{slug}{suffix}').write_bytes(content[key])
+            picture = (f'<a href="maps/{slug}.png"><img src="maps/{slug}.thumb.png" '
+                       f'alt="map of {html.escape(row["input"])}"></a>')
+            links = f'<a href="maps/{slug}.png">figure</a> <a href="maps/{slug}.json">JSON</a>'
+        else:
+            picture, links = '', ''
+        regions = '<br>'.join(html.escape(region['text']) for region in row['regions'])
+        runtime = row['runtime_seconds']
+        cells += [f'<span class="{row["verdict"].replace(" ", "-")}">{row["verdict"]}</span>',
+                  html.escape(row['error'] or row['summary_line']), regions or '-',
+                  '' if row['changed_places'] is None else str(row['changed_places']),
+                  '' if runtime is None else f'{runtime:.1f} s', picture, links]
+        body.append('<tr>' + ''.join(f'<td>{cell}</td>' for cell in cells) + '</tr>')
+    header = ''.join(f'<th>{name}</th>' for name in (
+        'input', 'kind', 'verdict', 'summary', 'misaligned regions', 'changed places',
+        'runtime', 'map', 'files'))
+    index = folder / 'index.html'
+    index.write_text(_PAGE.format(count=len(rows), header=header, body='\n'.join(body)))
+    return index
+
+
+_PAGE = '''<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>map consistency: {count} maps</title>
+<style>
+body {{ font-family: sans-serif; margin: 1em; }}
+table {{ border-collapse: collapse; }}
+td, th {{ border: 1px solid #ccc; padding: 4px 8px; vertical-align: top; font-size: 90%; }}
+img {{ max-width: 220px; }}
+.consistent {{ color: #080; font-weight: bold; }}
+.inconsistent {{ color: #c00; font-weight: bold; }}
+.bad-input, .internal-error {{ color: #a60; font-weight: bold; }}
+</style></head><body>
+<h1>map consistency: {count} maps</h1>
+<p>Table as <a href="batch.csv">CSV</a> and <a href="batch.json">JSON</a>.</p>
+<table><thead><tr>{header}</tr></thead><tbody>
+{body}
+</tbody></table></body></html>
+'''

@@ -1,0 +1,204 @@
+"""`map-consistency batch`: each input judged as check / replay would, the table, the exit
+code, the HTML page, and the same table from a Dask cluster as from the local pool."""
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from map_consistency_ros.cli import batch, check, pool
+from map_consistency_ros.cli.main import main
+
+DEMO_BAG = 'intel_demo.mcap'
+
+
+def _displaced_room(room_log):
+    """One and a half laps of the room with the second half logged 0.4 m off (as in
+    test_check): one misaligned region."""
+    t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
+    poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
+    path, _, _ = room_log(poses, name='displaced.log')
+    lines = []
+    for index, line in enumerate(path.read_text().splitlines()):
+        tokens = line.split()
+        if index >= 30:
+            for slot in (182, 185):
+                tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
+        lines.append(' '.join(tokens))
+    path.write_text('\n'.join(lines) + '\n')
+    return path
+
+
+def _first_line(capsys) -> str:
+    return capsys.readouterr().out.splitlines()[0]
+
+
+def test_each_input_is_judged_as_check_and_replay_judge_it(room_log, tmp_path, capsys):
+    consistent, _, _ = room_log()
+    displaced = _displaced_room(room_log)
+    bag = Path(batch.__file__).parents[1] / 'data' / DEMO_BAG
+    corrupt = tmp_path / 'corrupt.log'
+    corrupt.write_text('FLASER 3 1.0 2.0\n')
+    table, page = tmp_path / 'out' / 'table.csv', tmp_path / 'page'
+    code = main(['batch', str(consistent), str(displaced), str(bag), str(corrupt),
+                 str(tmp_path / 'nothing*.bag'), '--workers', '1', '--quiet',
+                 '--csv', str(table), '--json', str(tmp_path / 'table.json'),
+                 '--html', str(page)])
+    capsys.readouterr()
+    assert code == batch.EXIT_BAD_INPUT  # bad inputs outrank the inconsistent map
+    rows = json.loads((tmp_path / 'table.json').read_text())['maps']
+    assert [row['verdict'] for row in rows] == ['consistent', 'inconsistent', 'consistent',
+                                                'bad input', 'bad input']
+    assert [row['kind'] for row in rows] == ['carmen log', 'carmen log', 'ros2 bag',
+                                             'carmen log', 'missing']
+    assert 'truncated FLASER record' in rows[3]['error']
+    assert 'no such file' in rows[4]['error']
+    # the summary lines are check's and replay's, word for word
+    for row, command in zip(rows[:3], ('check', 'check', 'replay')):
+        expected = main([command, row['input'], '--quiet'])
+        assert row['exit_code'] == expected
+        assert _first_line(capsys) == f'{row["input"]}: {row["summary_line"]}'
+    (region,) = rows[1]['regions']
+    assert region['scans'][0] >= 30 and region['reference_scans'][1] < 30
+    assert region['displacement_m'] == pytest.approx(0.4, abs=0.05)
+    assert rows[2]['scans'] == 290 and rows[2]['changed_places'] > 0
+    with open(table, newline='') as stream:
+        cells = list(csv.DictReader(stream))
+    assert [cell['verdict'] for cell in cells] == [row['verdict'] for row in rows]
+    assert ' against scans 0-' in cells[1]['regions'] and 'dx -0.39 m' in cells[1]['regions']
+    index = (page / 'index.html').read_text()
+    for number, row in enumerate(rows[:3]):
+        slug = batch._slug(number, row['input'])
+        for suffix in ('.png', '.thumb.png'):
+            assert (page / 'maps' / f'{slug}{suffix}').read_bytes()[:4] == b'\x89PNG'
+            assert f'maps/{slug}{suffix}' in index
+        report = json.loads((page / 'maps' / f'{slug}.json').read_text())
+        assert report['verdict'] == row['verdict'] and f'maps/{slug}.json' in index
+    assert index.count('<tr>') == len(rows) + 1  # and the header
+    assert json.loads((page / 'batch.json').read_text())['maps'] == rows
+
+
+def test_folders_and_patterns_are_searched_and_each_input_listed_once(room_log, tmp_path):
+    first, _, _ = room_log(name='a.log')
+    (tmp_path / 'notes.txt').write_text('not a map')
+    bag_folder = tmp_path / 'run' / 'bag'
+    bag_folder.mkdir(parents=True)
+    (bag_folder / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}')
+    (bag_folder / 'bag_0.mcap').write_bytes(b'')
+    found = batch.find_inputs([str(tmp_path), str(tmp_path / '*.log'), str(first)])
+    assert found == [(str(first), batch.CARMEN), (str(bag_folder), batch.ROS2_BAG)]
+
+
+def test_an_unexpected_error_is_an_internal_error_and_the_batch_goes_on(room_log, tmp_path,
+                                                                          monkeypatch, capsys):
+    consistent, _, _ = room_log()
+    displaced = _displaced_room(room_log)
+    judge = check.judge
+
+    def failing(args):
+        if args.log == displaced:
+            raise ZeroDivisionError('a bug')
+        return judge(args)
+
+    monkeypatch.setattr(check, 'judge', failing)
+    code = main(['batch', str(displaced), str(consistent), '--workers', '1', '--quiet',
+                 '--json', str(tmp_path / 't.json')])
+    assert code == batch.EXIT_INTERNAL_ERROR == 3
+    rows = json.loads((tmp_path / 't.json').read_text())['maps']
+    assert rows[0]['verdict'] == 'internal error'
+    assert rows[0]['error'].startswith('internal error: ZeroDivisionError: a bug')
+    assert rows[1]['verdict'] == 'consistent'
+    assert 'internal error: ZeroDivisionError' in capsys.readouterr().out
+
+
+def test_a_worker_that_dies_is_reported_for_its_item_and_the_others_finish():
+    # eval is importable in any worker; the second item ends its worker process
+    items = ['1 + 1', '__import__("os")._exit(7)', '2 * 3', '4 - 1']
+    results = pool.run_all(eval, items, workers=2)
+    assert results[0] == 2 and results[2:] == [6, 3]
+    assert isinstance(results[1], pool.WorkerDied)
+
+
+def _without_runtimes(path):
+    rows = json.loads(path.read_text())['maps']
+    for row in rows:
+        row.pop('runtime_seconds')
+    return rows
+
+
+def test_dask_cluster_gives_the_table_of_the_local_pool(shared_data, tmp_path):
+    import dask
+    from distributed import LocalCluster
+
+    extra = shared_data / 'carmen_corrected_extra'
+    corrupt = tmp_path / 'corrupt.log.gz'
+    corrupt.write_bytes((extra / 'orebro-corrected.log.gz').read_bytes()[:5000])
+    inputs = [str(extra / 'orebro-corrected.log.gz'), str(corrupt),
+              str(extra / 'freiburg-101-corrected.log.gz')]
+    local, remote = tmp_path / 'local.json', tmp_path / 'dask.json'
+    assert main(['batch', *inputs, '--workers', '2', '--quiet', '--json', str(local)]) == 2
+    # a task on a worker that dies is given up at once, not retried on the others
+    with dask.config.set({'distributed.scheduler.allowed-failures': 0}):
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    try:
+        code = main(['batch', *inputs, '--scheduler', cluster.scheduler_address, '--quiet',
+                     '--json', str(remote)])
+        died = pool.run_all(eval, ['1 + 1', '__import__("os")._exit(7)'],
+                            scheduler=cluster.scheduler_address)
+    finally:
+        cluster.close()
+    assert code == 2
+    rows = _without_runtimes(local)
+    assert _without_runtimes(remote) == rows
+    assert [row['verdict'] for row in rows] == ['consistent', 'bad input', 'consistent']
+    assert [row['scans'] for row in rows] == [237, None, 292]
+    assert died[0] == 2 and isinstance(died[1], pool.WorkerDied)
+
+
+def test_a_scheduler_address_that_cannot_be_used_is_bad_input(room_log, capsys):
+    path, _, _ = room_log()
+    assert main(['batch', str(path), '--scheduler', 'not an address', '--quiet']) == 2
+    assert 'map-consistency batch: --scheduler not an address: ' in capsys.readouterr().err
+
+
+def test_no_map_at_all_is_bad_input(tmp_path, capsys):
+    (tmp_path / 'notes.txt').write_text('not a map')
+    assert main(['batch', str(tmp_path), '--quiet']) == 2
+    assert 'no logs, graphs or bags found' in capsys.readouterr().err
+
+
+def _room_graph(room_log, path):
+    """The room of `room_log` as a g2o graph: a vertex per scan at its logged pose, odometry
+    edges, and each scan as a ROBOTLASER1 line (180 beams over 180 degrees, laser at the robot)."""
+    from map_consistency_ros.core import se2
+    _, poses, ranges = room_log()
+    lines = []
+    for index, (pose, scan) in enumerate(zip(poses, ranges)):
+        numbers = ' '.join(f'{value:.9f}' for value in pose)
+        lines.append(f'VERTEX_SE2 {index} {numbers}')
+        lines.append(f'ROBOTLASER1 0 {-np.pi / 2:.9f} {np.pi:.9f} {np.pi / 180:.9f} 80 0.01 0 '
+                     f'{scan.size} ' + ' '.join(f'{r:.4f}' for r in scan) +
+                     f' 0 {numbers} {numbers} 0 0 0 0 0 {index * 0.2:.3f} host {index * 0.2:.3f}')
+    for index in range(len(poses) - 1):
+        step = ' '.join(f'{value:.9f}' for value in se2.relative(poses[index], poses[index + 1]))
+        lines.append(f'EDGE_SE2 {index} {index + 1} {step} 100 0 0 100 0 1000')
+    path.write_text('\n'.join(lines) + '\n')
+    return path
+
+
+def test_a_graph_with_scans_is_judged_at_its_vertex_poses_as_check_judges_it(room_log,
+                                                                               tmp_path, capsys):
+    log, _, _ = room_log()
+    graph = _room_graph(room_log, tmp_path / 'room.g2o')
+    code = main(['batch', str(graph), str(log), '--workers', '1', '--quiet',
+                 '--json', str(tmp_path / 't.json')])
+    assert code == 0
+    rows = json.loads((tmp_path / 't.json').read_text())['maps']
+    assert [row['kind'] for row in rows] == ['g2o graph', 'carmen log']
+    assert rows[0]['scans'] == rows[1]['scans'] == 40
+    capsys.readouterr()
+    assert main(['check', str(graph), '--quiet']) == 0
+    assert _first_line(capsys) == f'{graph}: {rows[0]["summary_line"]}'
+    assert rows[0]['summary_line'] == rows[1]['summary_line']
