@@ -19,10 +19,12 @@ record did, including every warning, so the node and replay report the same prob
   (core/graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
   keyframe estimate.
 
-`estimate_stamp` names the estimate the monitor holds, so that a verdict says which one it
-judged (the node's ~/report and replay's report, `judged_stamp`): the header stamp of the last
-estimate that changed the map, or, for estimates without one (single poses, graph snapshots),
-its newest keyframe's stamp. `snapshot()` is the monitor's snapshot with it.
+`estimate_stamp` names the estimate the monitor's map holds, so that a verdict says which one
+it judged (the node's ~/report and replay's report, `judged_stamp`): at the last change of the
+map, the newest estimate taken, by its header stamp, or, for estimates without one (single
+poses, graph snapshots), its newest keyframe's stamp. A scan that completes a keyframe of that
+estimate later changes the map under the same name; an estimate that changes nothing renames
+nothing. `snapshot()` is the monitor's snapshot with it.
 """
 from __future__ import annotations
 
@@ -220,6 +222,7 @@ class MonitorFeed:
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
         self.estimate_stamp = math.nan  # (module docstring) NaN before any estimate
+        self._taken_stamp = math.nan  # the newest estimate the monitor took
 
     def reset(self, reason: str) -> None:
         """Forget every scan, keyframe and constraint (a new SLAM session)."""
@@ -268,19 +271,22 @@ class MonitorFeed:
         raise TypeError(f'not an input record: {type(record).__name__}')
 
     def _estimate(self, stamps: np.ndarray, poses: np.ndarray, stamp: float) -> Applied:
-        """A keyframe estimate to the monitor; when it changed the map, its stamp (the newest
-        keyframe's where `stamp` is not finite) names the estimate from then on."""
-        applied = self._update(lambda: self.monitor.update_trajectory(stamps, poses))
-        if applied.summary is not None:
-            self.estimate_stamp = (float(stamp) if math.isfinite(stamp) else
-                                   float(np.max(stamps)) if len(stamps) else math.nan)
-        return applied
+        """A keyframe estimate to the monitor, named by `stamp` (the newest keyframe's where
+        that is not finite) once the monitor took it."""
+        def take():
+            summary = self.monitor.update_trajectory(stamps, poses)
+            self._taken_stamp = (float(stamp) if math.isfinite(stamp) else
+                                 float(np.max(stamps)) if len(stamps) else math.nan)
+            return summary
+        return self._update(take)
 
     def _update(self, step) -> Applied:
         try:
             summary = step()
         except ValueError as error:
             return Applied(warnings=(str(error),))
+        if summary.changed:
+            self.estimate_stamp = self._taken_stamp
         return Applied(summary=summary if summary.changed else None, warnings=summary.warnings)
 
     def _scan(self, scan: Scan) -> Applied:

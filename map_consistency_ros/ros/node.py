@@ -802,12 +802,16 @@ def _run_kernels_on(threads: int) -> None:
 def _yield_to_updates() -> None:
     """Lower the calling thread's CPU priority (Linux: nice is per thread) and run its
     compiled kernels on it alone, so that on a loaded machine the second stage takes what the
-    first-stage updates leave instead of slowing them down."""
+    first-stage updates leave instead of slowing them down.
+
+    Kernel threads first: the first call launches numba's threading layer, whose threads
+    inherit the niceness of the thread that creates them (Linux), and must keep the node's.
+    """
+    _run_kernels_on(EXPLAINER_THREADS)
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EXPLAINER_NICENESS)
     except (AttributeError, OSError):  # not Linux, or not allowed: same priority, still correct
         pass
-    _run_kernels_on(EXPLAINER_THREADS)
 
 
 def _spin_until(executor: Executor, stop: threading.Event) -> None:

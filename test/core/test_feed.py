@@ -87,6 +87,21 @@ def test_the_estimate_stamp_names_the_last_estimate_that_changed_the_map(intel):
     assert feed.snapshot().estimate_stamp == stamps.max()
 
 
+def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
+    # The node takes topics as they come: a Path may name a scan that has not arrived yet.
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed()
+    scans = _scan_records(stamps, ranges, model)
+    for scan in scans[:-1]:
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps[:-1], poses=poses[:-1], stamp=500.0))
+    waiting = feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=501.0))
+    assert waiting.summary is None and feed.snapshot().estimate_stamp == 500.0
+    assert feed.apply(scans[-1]).summary is not None  # the last keyframe, of estimate 501
+    snapshot = feed.snapshot()
+    assert snapshot.keyframe_count == SCANS and snapshot.estimate_stamp == 501.0
+
+
 def test_single_poses_name_their_estimate_by_the_newest_keyframe(intel):
     stamps, ranges, poses, model = intel
     feed = MonitorFeed(settings=FeedSettings(pose_source='odometry', keyframe_distance=0.3,

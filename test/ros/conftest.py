@@ -71,7 +71,8 @@ class NodeUnderTest:
         The node's report is the newest whose verdict judged the map replay judged: the same
         estimate (judged_stamp) with the same keyframes. Neither arrival order nor how far
         the node's second stage lags on a busy machine changes which report that is; {} when
-        the node never judged that map within `timeout` seconds."""
+        a failure naming the maps it judged when it never judged that one within `timeout`
+        seconds."""
         code = main(['replay', str(bag), '--quiet', '--report', str(out)])
         report = _strict(out.read_text())
         judged = (report['judged_stamp'], report['judged_keyframes'])
@@ -85,7 +86,13 @@ class NodeUnderTest:
         deadline = time.monotonic() + timeout
         while same_map() is None and time.monotonic() < deadline:
             time.sleep(0.1)
-        return code, report, same_map() or {}
+        found = same_map()
+        if found is None:
+            seen = [(content.get('judged_stamp'), content.get('judged_keyframes'),
+                     content.get('keyframes')) for content in list(self.reports)[-5:]]
+            pytest.fail(f'the node never judged the map replay judged {judged}; its last '
+                        f'reports judged (stamp, keyframes) with keyframes: {seen}')
+        return code, report, found
 
 
 @pytest.fixture
