@@ -385,6 +385,28 @@ def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.
     return int(np.unique(task_of_pair[rows[agree]]).size)
 
 
+def _consensus(points: _PointMoments, transforms: np.ndarray) -> np.ndarray:
+    """The world transform among `transforms` (E, 3) that places the `points` (one pooled
+    set) nearest to where the others place them: the median displacement to the others, the
+    smallest. Not the median of x, y and theta taken apart: a world transform's translation
+    is R-dependent (t = c - R c about the centre c of the turn), so on a map tens of metres
+    from its origin a median theta and a median (x, y) from different registrations are no
+    rigid motion of the region, and place its points up to metres away."""
+    unique = np.unique(transforms, axis=0)
+    if len(unique) == 1:
+        return unique[0]
+    if len(unique) > _CONSENSUS_CANDIDATES:  # bounded cost: a spread subset of candidates
+        unique = unique[np.linspace(0, len(unique) - 1, _CONSENSUS_CANDIDATES).astype(int)]
+    count = len(unique)
+    first, second = np.repeat(np.arange(count), count), np.tile(np.arange(count), count)
+    relative = se2.relative(unique[first], unique[second])
+    apart = points.displacement(relative, np.zeros(relative.shape[0], dtype=np.int64))
+    return unique[int(np.argmin(np.median(apart.reshape(count, count), axis=1)))]
+
+
+_CONSENSUS_CANDIDATES = 200
+
+
 def _longest_run(scans: np.ndarray, gap: int) -> int:
     """The most scans of sorted indices `scans` joined by steps of at most `gap`."""
     if scans.size == 0:
@@ -515,18 +537,24 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
                _longest_run(reference, settings.block)) < settings.min_region_scans:
             continue  # scans out of place here and there, or a revisit seen from one scan
         registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
-        registered = registered_rows.size * 2 >= rows.size
+        registered = False
+        if registered_rows.size * 2 >= rows.size:
+            correction = _consensus(moments.pooled(moved), transforms[registered_rows])
+            # A correction that its registrations do not confirm, or that does not mend the
+            # region, is no measurement of it; the region is then judged as beyond
+            # registration (below), not dropped: a stretch displaced further than the
+            # registrations reach (a turn of 5 degrees moves points 20 m away by 1.7 m) makes
+            # them snap onto the wrong walls, and agree on it.
+            registered = (
+                _agreeing_registrations(moments, registered_rows, pairs, transforms,
+                                        task_of_pair, correction, settings)
+                >= settings.min_registrations
+                and _resolved_fraction(scans, result, moved, reference, correction)
+                >= settings.min_resolved_fraction)
         if registered:
-            correction = np.median(transforms[registered_rows], axis=0)
-            if _agreeing_registrations(moments, registered_rows, pairs, transforms, task_of_pair,
-                                       correction, settings) < settings.min_registrations:
-                continue
             spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
                                                    axis2=2), axis=0))
             displacement = float(moments.pooled(moved).displacement(correction[None])[0])
-            if (_resolved_fraction(scans, result, moved, reference, correction)
-                    < settings.min_resolved_fraction):
-                continue
         else:
             # beyond registration, no correction corroborates it: a displaced stretch of at
             # least a block, spread wider than any change, that several registrations fail on
