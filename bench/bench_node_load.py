@@ -135,12 +135,13 @@ def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
 
 
 def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
-        executor: str, parameters: list[str]) -> None:
+        executor: str, parameters: list[str], spacing: float) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
 
     from map_consistency_ros.core import se2
+    from map_consistency_ros.core.viewpoints import viewpoint_rows
     from map_consistency_ros.io import messages
     from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
     from map_consistency_ros.ros.conversions import message_class
@@ -149,6 +150,9 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     model = sensor_model(log)
     count = log.scan_count if limit is None else min(limit, log.scan_count)
     order = np.argsort(log.timestamps[:count], kind='stable')  # a driver stamps in order
+    if spacing > 0.0:  # the stream of a stack that keyframes every `spacing` metres
+        order = order[viewpoint_rows(log.laser_poses[order], spacing, spacing)]
+        count = order.size
     stamps, poses, ranges = (log.timestamps[order], log.laser_poses[order],
                              log.ranges[order])
     scans = [serialize_message(messages.scan_message(message_class, stamps[k], ranges[k], model))
@@ -227,20 +231,24 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         if node.poll() is None:
             node.kill()
     keyframes = reports[-1]['keyframes'] if reports else 0
-    print(f'\n{name}: {count} scans at {rate:g} scans/s (streamed in {streamed:.1f} s), '
-          f'a Path every {path_every} scans, executor {executor}'
+    folded = reports[-1].get('folded_keyframes', 0) if reports else 0
+    sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
+    print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s (streamed in '
+          f'{streamed:.1f} s), a Path every {path_every} scans, executor {executor}'
           + ''.join(f', {value}' for value in parameters))
     print(f'  node start-up (launch -> ready)      {startup:.2f} s'
           + ('' if ready else ' (NOT READY: streamed after the 120 s deadline)'))
-    print(f'  keyframes registered / scans sent   {keyframes} / {count}')
+    print(f'  keyframes registered / scans sent   {keyframes + folded} / {count} '
+          f'({keyframes} viewpoints, {folded} folded into them)')
     print(f'  reported lost                        lost scans {status.get("lost scans")}, '
           f'poses without scan {status.get("poses without scan")}, '
           f'missing from stamps {status.get("scans missing from stamps")}')
     waiting = int(status.get('queued scans', 0)) + int(status.get('buffered scans', 0))
     print(f'  still waiting in the node (behind)   {waiting} scans queued or buffered after '
           f'{waited:.0f} s')
-    honest = keyframes == count or (int(status.get('lost scans', 0)) + waiting
-                                    + int(status.get('poses without scan', 0))) >= count - keyframes
+    honest = keyframes + folded == count or (
+        int(status.get('lost scans', 0)) + waiting + int(status.get('poses without scan', 0))
+        >= count - keyframes - folded)
     print(f'  every scan a keyframe or its loss reported: {"yes" if honest else "NO"}')
     published = reports[-1]['updates'] if reports else 0
     # one report per update (its first): the second stage publishes too, with the figures of
@@ -260,8 +268,9 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
               f'p99 {np.percentile(latency, 99):.1f}, max {latency.max():.1f} '
               f'over {latency.size} of {published} updates '
               '(target: median < 10, p99 < 50)')
-        sizes = np.array([r['keyframes'] for r in reports])
-        edges = np.linspace(0, count, BUCKETS + 1)
+        sizes = np.array([r['keyframes'] for r in reports])  # map size: viewpoints
+        edges = np.linspace(0, sizes.max(), BUCKETS + 1)
+        buckets = []
         print('  keyframes        updates  median  p99   | queued monitor snapshot markers '
               'publish (median ms) | second stage (median ms per explanation)')
         for low, high in zip(edges[:-1], edges[1:]):
@@ -273,15 +282,21 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
                      for key in ('queued_s', 'monitor_s', 'snapshot_s', 'markers_s', 'publish_s')}
             explained = np.median([seconds for judged, seconds in explanations
                                    if low < judged <= high] or [np.nan]) * 1e3
+            buckets.append(np.median(latency[inside]))
             print(f'  {int(low) + 1:>5}-{int(high):<5}  {inside.sum():>8}  '
                   f'{np.median(latency[inside]):6.1f} {np.percentile(latency[inside], 99):6.1f}'
                   f' | {stage["queued_s"]:6.1f} {stage["monitor_s"]:7.1f} {stage["snapshot_s"]:8.1f} '
                   f'{stage["markers_s"]:7.1f} {stage["publish_s"]:7.1f} | {explained:7.1f}')
+        print(f'  last / first map-size bucket, median latency: '
+              f'{buckets[-1] / buckets[0]:.2f} (target <= 1.5: flat in map size)')
     if reference:
         alone = in_process(stamps, ranges, poses, model, path_every) * 1e3
         print(f'  reference: the same Path updates in-process, no ROS: median '
               f'{np.median(alone):.1f} ms, p99 {np.percentile(alone, 99):.1f} ms '
               f'({path_every} keyframes each)')
+        if latency.size:
+            print(f'  node / in-process median latency: {np.median(latency) / np.median(alone):.2f}'
+                  ' (target <= 1.5)')
     print(f'  node peak RSS                        {rss:.0f} MiB')
     state = 'during a retune' if retuning else 'after the retune'
     print(f'  SIGINT -> exit, {state:<20} {stop_seconds:.2f} s (exit code {node.returncode}; '
@@ -293,6 +308,9 @@ def main() -> None:
     parser.add_argument('--logs', nargs='+', default=['intel', 'fr079'], choices=sorted(LOGS))
     parser.add_argument('--rates', nargs='+', type=float, default=[100.0, 400.0])
     parser.add_argument('--path-every', type=int, default=10)
+    parser.add_argument('--keyframe-spacing', type=float, default=0.0, metavar='METRES',
+                        help="stream only keyframes this far apart (and as many radians), as a "
+                             "stack that keyframes would; 0: every scan of the log")
     parser.add_argument('--scans', type=int, default=None, help='only the first N scans')
     parser.add_argument('--no-reference', action='store_true',
                         help='skip the in-process reference (minutes on Freiburg 079)')
@@ -308,7 +326,7 @@ def main() -> None:
         for rate in args.rates:
             for executor in args.executors:
                 run(name, rate, args.path_every, args.scans, not args.no_reference, executor,
-                    args.parameter)
+                    args.parameter, args.keyframe_spacing)
 
 
 if __name__ == '__main__':
