@@ -70,8 +70,8 @@ class NodeUnderTest:
 
         The node's report is the newest whose verdict judged the map replay judged: the same
         estimate (judged_stamp) with the same keyframes. Neither arrival order nor how far
-        the node's second stage lags on a busy machine changes which report that is; {} when
-        a failure naming the maps it judged when it never judged that one within `timeout`
+        the node's second stage lags on a busy machine changes which report that is. The test
+        fails, naming the maps the node judged, when it never judged that one within `timeout`
         seconds."""
         code = main(['replay', str(bag), '--quiet', '--report', str(out)])
         report = _strict(out.read_text())
