@@ -287,7 +287,7 @@ def run_case(case: Case, data: Path, checkout: Path) -> dict:
     }
     if largest is not None:
         row.update(largest_displacement_m=_finite(largest.displacement),
-                   largest_dtheta_deg=float(np.degrees(largest.correction[2])),
+                   largest_dtheta_deg=_finite(np.degrees(largest.correction[2])),
                    largest_scans=int(len(largest.scans)),
                    largest_registered=bool(largest.registered))
         if len(moved):
