@@ -8,11 +8,17 @@ Pareto frontiers (a figure like the paper's Fig. 3) and a runtime table like its
 examples:
   map-consistency evaluate --data ../shared/data
   map-consistency evaluate --datasets intel orebro --part-size 100 --doc out/eval.md
+  map-consistency evaluate --suite density --density-logs fr079 --densities 1 5 --cases map rot2
+
+`--suite density` runs the density suite instead (evaluation/density.py): each map at several
+densities and displaced copies of it, every case in its own process at default settings;
+`--build-native` first rebuilds data/density/intel-native.log.gz from the raw Intel bag.
 """
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import os
 import platform
 import subprocess
@@ -26,7 +32,7 @@ from map_consistency_ros.cli import plots, report
 from map_consistency_ros.cli.plots import save_figure
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.baseline import BaselineParameters, map_statistic
-from map_consistency_ros.evaluation import metrics, runner, whole_logs
+from map_consistency_ros.evaluation import density, metrics, runner, whole_logs
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.explanation import ExplanationSettings, explain
 from map_consistency_ros.evaluation.suite import (CORRECTED_LOGS, SuiteMap, SuiteParameters,
@@ -55,6 +61,8 @@ TARGET = 0.95  # the issue's bar: recall and specificity both at least this
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = SuiteParameters()
     suite = parser.add_argument_group('suite')
+    suite.add_argument('--suite', choices=('paper', 'density'), default='paper',
+                       help='the labelled suite of the paper (default) or the density suite')
     suite.add_argument('--data', type=Path, default=Path('../shared/data'),
                        help='folder of the real datasets (default %(default)s)')
     suite.add_argument('--datasets', nargs='+', choices=sorted(CORRECTED_LOGS),
@@ -87,6 +95,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='random seams per displacement size and log (default %(default)s)')
     whole.add_argument('--no-whole-logs', action='store_true',
                        help='skip the whole-log suite (the slowest part)')
+    dense = parser.add_argument_group('density suite (--suite density)')
+    dense.add_argument('--density-logs', nargs='+', choices=list(density.LOGS),
+                       default=list(density.LOGS), help='logs (default: all)')
+    dense.add_argument('--densities', nargs='+', default=None, metavar='N',
+                       help="every N-th scan, or 'keyframes' (Intel only); default: all")
+    dense.add_argument('--cases', nargs='+', choices=list(density.CASES), default=None,
+                       help='the map and its displaced copies (default: all)')
+    dense.add_argument('--checkout', type=Path, default=density.CHECKOUT,
+                       help='folder holding data/density/ (default: this source tree); the '
+                            'verdict code is whatever PYTHONPATH imports')
+    dense.add_argument('--case-timeout', type=float, default=None, metavar='SECONDS',
+                       help='give up a case after this long (default: never)')
+    dense.add_argument('--build-native', action='store_true',
+                       help='rebuild data/density/intel-native.log.gz first')
+    dense.add_argument('--json', type=Path, default=Path('docs/figures/density.json'),
+                       help='density suite results (default %(default)s)')
     parser.add_argument('--max-range', type=float, default=None, metavar='METRES',
                         help='usable laser range (default 8, as the original implementation)')
     out = parser.add_argument_group('output')
@@ -490,7 +514,24 @@ def write_doc(args: argparse.Namespace, maps: list[SuiteMap], measured: list[run
     args.doc.write_text('\n'.join(lines))
 
 
+def run_density(args: argparse.Namespace) -> int:
+    """The density suite: the table goes to --doc (when left at its default, to
+    docs/density.md) and the rows to --json."""
+    if args.build_native:
+        built = density.build_native(args.data, args.checkout / density.LOGS['intel-native'])
+        print(json.dumps(built))
+    cases = density.all_cases(args.density_logs, args.densities, args.cases)
+    if not cases:
+        raise InputError('options', 'no density-suite case matches --density-logs / --densities')
+    doc = Path('docs/density.md') if args.doc == Path('docs/evaluation.md') else args.doc
+    density.run_suite(cases, args.data, args.checkout, args.json, doc, args.case_timeout)
+    print(f'table {doc}, rows {args.json}')
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.suite == 'density':
+        return run_density(args)
     commit = _commit()  # before this run writes its own figures into the tree
     suite_parameters, settings = _settings(args)
     started = time.perf_counter()
