@@ -37,7 +37,9 @@ import numpy as np
 from map_consistency_ros.core import se2
 from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
                                                    surface_points)
+from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
 from map_consistency_ros.io.datasets import RawBag, match_scans
 
@@ -257,13 +259,18 @@ def load(case: Case, data: Path, checkout: Path):
     poses, moved = displaced(true_poses, log.timestamps[rows], start, centre, degrees, metres)
     if case.case == 'map':
         moved = np.zeros(0, dtype=np.int64)
-    scans = ScanSet.from_ranges(log.ranges[rows], poses, sensor_model(log))
-    return scans, true_poses, moved
+    # the viewpoints `check` tests, selected on the map's poses as it selects them
+    parameters = ConsistencyParameters()
+    keep = viewpoint_rows(poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
+    displaced_row = np.zeros(len(rows), dtype=bool)
+    displaced_row[moved] = True
+    scans = ScanSet.from_ranges(log.ranges[rows[keep]], poses[keep], sensor_model(log))
+    return scans, true_poses[keep], np.flatnonzero(displaced_row[keep])
 
 
 def run_case(case: Case, data: Path, checkout: Path) -> dict:
-    """The verdict of `check` (core.explanation.check_map at default settings) on the case,
-    with its runtime, this process's peak memory and the truth."""
+    """The verdict of `check` (its viewpoints, core.explanation.check_map at default settings)
+    on the case, with its runtime, this process's peak memory and the truth."""
     from map_consistency_ros.core.explanation import check_map
     scans, true_poses, moved = load(case, data, checkout)
     started = time.perf_counter()
