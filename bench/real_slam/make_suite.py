@@ -11,7 +11,7 @@ previous one wrote in --work (default /tmp/real_slam_work):
            stamp) -> data/real_slam/<run>.log.gz; for the runs in FULL_DENSITY every raw scan
            too -> <run>_full.log.gz
   label    relation errors (Kuemmerle et al. 2009) and a PNG of the points per map ->
-           data/real_slam/labels.json and --work/png/
+           data/real_slam/labels.json and data/real_slam/png/
 
   PYTHONPATH=. python bench/real_slam/make_suite.py --stages rawlog slam convert label
 """
@@ -372,8 +372,8 @@ def main(argv=None) -> int:
                 errors = relation_errors(read_relations(LOGS[run.log] / f'{run.log}.relations'),
                                          bag.scan_stamps, placed, near_keyframes(bag, index))
                 verdict, reason = label(errors)
-                (args.work / 'png').mkdir(exist_ok=True)
-                render(args.work / 'png' / f'{name}.png', bag, scans, robot,
+                (OUT / 'png').mkdir(exist_ok=True)
+                render(OUT / 'png' / f'{name}.png', bag, scans, robot,
                        f'{name}: {verdict}')
                 labels['maps'][name] = {
                     'file': f'{name}.log.gz', 'log': run.log, 'slam': settings,
