@@ -12,6 +12,8 @@ previous one wrote in --work (default /tmp/real_slam_work):
            too -> <run>_full.log.gz
   label    relation errors (Kuemmerle et al. 2009) and a PNG of the points per map ->
            data/real_slam/labels.json and data/real_slam/png/
+  calibrate  the same errors for the corrected reference logs, whole and thinned to keyframes
+           as the SLAM runs keep them -> labels.json "reference" (grounds the thresholds)
 
   PYTHONPATH=. python bench/real_slam/make_suite.py --stages rawlog slam convert label
 """
@@ -33,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core import se2
-from map_consistency_ros.io.datasets import RawBag, read_raw_bag, read_relations
+from map_consistency_ros.io.carmen import read_carmen_log
+from map_consistency_ros.io.datasets import RawBag, match_scans, read_raw_bag, read_relations
 
 REPO = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -41,6 +44,10 @@ DATA = Path(os.environ.get('MAP_CONSISTENCY_DATA', '/work/shared/data'))
 OUT = REPO / 'data' / 'real_slam'
 MRPT_CONFIGS = Path('/usr/share/mrpt/config_files')
 LOGS = {'intel': DATA / 'intel', 'fr079': DATA / 'fr079'}
+REFERENCE_LOGS = {'intel': DATA / 'intel' / 'intel.gfs.log',
+                  'fr079': DATA / 'fr079' / 'freiburg-079-corrected.log.gz'}
+# keyframe rules of the SLAM configs: (metres, degrees) of motion between insertions
+KEYFRAME_RULES = {'icp-slam': (1.2, 45.0), 'rbpf-slam': (2.0, 30.0)}
 # readings at or beyond this are the logs' no-return values (81.83 / 81.91 m)
 NO_RETURN = 80.0
 # loop relations: the two scans were taken this far apart in time
@@ -324,13 +331,47 @@ def render(path: Path, bag: RawBag, index: np.ndarray, robot: np.ndarray, title:
     plt.close(figure)
 
 
+def thin(poses: np.ndarray, metres: float, degrees: float) -> np.ndarray:
+    """Indices kept by an insertion rule: a pose once it moved `metres` or turned `degrees`
+    from the last kept one (the first is kept)."""
+    kept = [0]
+    for i in range(1, len(poses)):
+        step = se2.compose(se2.inverse(poses[kept[-1]][None]), poses[i][None])[0]
+        if math.hypot(step[0], step[1]) >= metres or abs(math.degrees(step[2])) >= degrees:
+            kept.append(i)
+    return np.array(kept)
+
+
+def calibrate(bags: dict) -> dict:
+    """Relation errors of the corrected reference logs (consistent maps), whole and thinned
+    by each SLAM's keyframe rule, placed and measured exactly as the SLAM maps are."""
+    reference = {}
+    for name, bag in bags.items():
+        log = read_carmen_log(REFERENCE_LOGS[name])
+        index = match_scans(log, bag)
+        relations = read_relations(LOGS[name] / f'{name}.relations')
+        rules = {'whole': None, **KEYFRAME_RULES}
+        for rule, thresholds in rules.items():
+            kept = np.arange(len(index)) if thresholds is None else thin(log.robot_poses,
+                                                                        *thresholds)
+            run = Run(f'{name}_reference', name, 'reference', REFERENCE_LOGS[name].name)
+            placed = place_all(run, Path('/nonexistent'), bag, index[kept],
+                               log.robot_poses[kept])
+            errors = relation_errors(relations, bag.scan_stamps, placed,
+                                     near_keyframes(bag, index[kept]))
+            reference[f'{name}/{rule}'] = {'keyframes': int(len(kept)), 'relation_errors': errors,
+                                           'label': label(errors)[0]}
+            print(f'reference {name} {rule}: {label(errors)[1]}', flush=True)
+    return reference
+
+
 # ---------------------------------------------------------------------------------------- main
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--stages', nargs='+', default=['rawlog', 'slam', 'convert', 'label'],
-                        choices=['rawlog', 'slam', 'convert', 'label'])
+                        choices=['rawlog', 'slam', 'convert', 'label', 'calibrate'])
     parser.add_argument('--runs', nargs='*', default=None, help='run names (default: all)')
     parser.add_argument('--work', type=Path, default=Path('/tmp/real_slam_work'))
     args = parser.parse_args(argv)
@@ -381,7 +422,10 @@ def main(argv=None) -> int:
                     else 'keyframes', 'slam_seconds': status[run.name]['seconds'],
                     'relation_errors': errors, 'label': verdict, 'reason': reason}
                 print(name, verdict, reason, flush=True)
-    if 'label' in args.stages:
+    if 'calibrate' in args.stages:
+        labels['reference'] = calibrate({name: bags.get(name) or read_raw_bag(
+            LOGS[name] / f'{name}.orig.bag') for name in LOGS})
+    if 'label' in args.stages or 'calibrate' in args.stages:
         labels['rule'] = (
             f'consistent when, over the keyframe loop relations (stamps > {LOOP_GAP:g} s apart, '
             f'both scans within {KEYFRAME_GAP_M} m of travel and {KEYFRAME_GAP_DEG:g} deg of '
