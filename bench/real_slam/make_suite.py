@@ -58,6 +58,8 @@ MAX_LOOP_ROTATION_DEG = 4.0
 # relations used for the label: both scans this close (travel, turning) to a keyframe
 KEYFRAME_GAP_M = 0.25
 KEYFRAME_GAP_DEG = 5.0
+# a largest error this close to the limit is named borderline in the reason
+BORDERLINE_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -305,6 +307,8 @@ def label(errors: dict) -> tuple[str, str]:
               f'(limit {MAX_LOOP_TRANSLATION} m; {basis["over_0.3m"]} over 0.3 m, '
               f'{basis["over_1m"]} over 1 m), 95th-percentile rotational error {r:.2f} deg '
               f'(limit {MAX_LOOP_ROTATION_DEG} deg)')
+    if abs(t - MAX_LOOP_TRANSLATION) <= BORDERLINE_M:
+        stated = f'borderline ({BORDERLINE_M} m from the limit): {stated}'
     if t <= MAX_LOOP_TRANSLATION and r <= MAX_LOOP_ROTATION_DEG:
         return 'consistent', stated
     return 'inconsistent', stated
@@ -421,7 +425,8 @@ def main(argv=None) -> int:
                     'file': f'{name}.log.gz', 'log': run.log, 'slam': settings,
                     'scans': int(len(scans)), 'density': 'full' if name.endswith('_full')
                     else 'keyframes', 'slam_seconds': status[run.name]['seconds'],
-                    'relation_errors': errors, 'label': verdict, 'reason': reason}
+                    'relation_errors': errors, 'label': verdict, 'reason': reason,
+                    'borderline': reason.startswith('borderline')}
                 print(name, verdict, reason, flush=True)
     if 'calibrate' in args.stages:
         labels['reference'] = calibrate({name: bags.get(name) or read_raw_bag(
