@@ -85,7 +85,10 @@ def main(argv=None) -> int:
     for name in sorted(labels):
         if args.maps is not None and name not in args.maps:
             continue
-        results[name] = check(name, args.reports, args.timeout)
+        outcome = check(name, args.reports, args.timeout)
+        # re-read before writing: another run of this script may have added maps meanwhile
+        results = json.loads(results_path.read_text()) if results_path.exists() else {}
+        results[name] = outcome
         results_path.write_text(json.dumps(results, indent=1, sort_keys=True) + '\n')
         print(name, results[name].get('summary_line'), results[name]['exit_code'], flush=True)
     print('| map | scans | label | check verdict | exit | wall s | misalignments | distortion m |')
