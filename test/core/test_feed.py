@@ -90,7 +90,7 @@ def test_the_estimate_stamp_names_the_last_estimate_that_changed_the_map(intel):
 def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
     # The node takes topics as they come: a Path may name a scan that has not arrived yet.
     stamps, ranges, poses, model = intel
-    feed = MonitorFeed()
+    feed = MonitorFeed(EVERY_KEYFRAME)
     scans = _scan_records(stamps, ranges, model)
     for scan in scans[:-1]:
         feed.apply(scan)
