@@ -39,7 +39,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / 'shared' / 'data'
 LOGS = {'intel': DATA / 'intel' / 'intel.gfs.log',
-        'fr079': DATA / 'fr079' / 'freiburg-079-corrected.log.gz'}
+        'fr079': DATA / 'fr079' / 'freiburg-079-corrected.log.gz',
+        # Intel at the laser's native rate (the density suite's rebuild): scan by scan
+        'intel-native': REPO / 'data' / 'density' / 'intel-native.log.gz'}
 BUCKETS = 6
 
 
