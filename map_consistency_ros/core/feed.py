@@ -50,6 +50,10 @@ KEYFRAMED_SOURCES = ('odometry', 'pose', 'pose_with_covariance')
 # drivers stamp regularly, but keyframe-only logs do not, so the count is an estimate.
 _GAP_PERIODS = 2.5
 _PERIOD_SAMPLES = 64
+# No 2D laser scans faster than 1 kHz: stamps closer than this are one scan published twice or
+# re-stamped, not a period (a median period of microseconds would count a normal 0.1 s
+# interval as thousands of lost scans).
+_SHORTEST_PERIOD = 1e-3
 RESET_CONFIRMATIONS = 5
 
 
@@ -180,7 +184,7 @@ class ScanGaps:
                 period = float(np.median(self._intervals))
                 if period > 0.0 and interval > _GAP_PERIODS * period:
                     missing = int(round(interval / period)) - 1
-            if missing == 0:
+            if missing == 0 and interval >= _SHORTEST_PERIOD:
                 self._intervals.append(interval)  # gaps would inflate the period
         if self._last is None or stamp > self._last:
             self._last = stamp

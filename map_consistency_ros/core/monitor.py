@@ -650,6 +650,8 @@ class ConsistencyMonitor:
             slots = (np.full(self._path_stamps.size, _NO_SCAN, dtype=np.int64) if count == 0
                      else self._keyframes.match(self._path_stamps,
                                                 self.settings.stamp_tolerance))
+            if count:
+                slots[_claimed_twice(slots, self._path_stamps, self._keyframes.stamps)] = _NO_SCAN
             if self._folded.size:
                 folded = _match(self._path_stamps, self._folded, self.settings.stamp_tolerance,
                                 np.arange(self._folded.size)) >= 0
@@ -690,50 +692,55 @@ class ConsistencyMonitor:
         new, folded = [], []
         unregistered = np.flatnonzero(path_slots == _NO_SCAN)
         matches = self._buffer_matches(self._path_stamps[unregistered])
+        # trajectory indices of keyframes before this pass; the pass goes in index order, so
+        # a keyframe it registers is the nearest earlier one of every later pose
+        known = np.flatnonzero(path_slots >= 0)
+        registered = -1
         for index, buffered in zip(unregistered[np.isfinite(matches)],
                                    matches[np.isfinite(matches)]):
             if buffered not in self._buffer:
                 continue  # two poses within the tolerance of one scan: the first takes it
-            if not self._new_viewpoint(index, path_slots):
+            place = int(np.searchsorted(known, index))
+            earlier = max(int(known[place - 1]) if place else -1, registered)
+            later = int(known[place]) if place < known.size else -1
+            if not self._new_viewpoint(index, earlier):
                 self._buffer.pop(float(buffered))
                 folded.append(float(buffered))
                 path_slots[index] = _FOLDED
                 continue
             pose = self._path_poses[index]
-            incremental = self._incremental_pose(index, path_slots)
+            anchor = earlier if earlier >= 0 else later
+            incremental = self._incremental_pose(index, anchor, path_slots)
             scan = self._buffer.pop(float(buffered))
             slot = self._keyframes.append(float(buffered), pose, incremental, scan)
             path_slots[index] = slot
+            registered = int(index)
             new.append(slot)
         if folded:
             self._folded = np.sort(np.concatenate([self._folded, folded]))
         return np.asarray(new, dtype=np.int64)
 
-    def _new_viewpoint(self, index: int, path_slots: np.ndarray) -> bool:
+    def _new_viewpoint(self, index: int, earlier: int) -> bool:
         """Whether pose `index` of the trajectory is a viewpoint: far enough from the nearest
-        earlier keyframe of the trajectory (core/viewpoints.py). A pose with no earlier
-        keyframe (the first, or a late first scan) always is."""
-        earlier = np.flatnonzero(path_slots[:index] >= 0)
-        if earlier.size == 0:
+        earlier keyframe of the trajectory, pose `earlier` (core/viewpoints.py). A pose with
+        no earlier keyframe (-1: the first, or a late first scan) always is."""
+        if earlier < 0:
             return True
         # the laser's travel, as check measures it on a log's laser poses
-        laser = sensor_poses(self._path_poses[[earlier[-1], index]], self._offset)
+        laser = sensor_poses(self._path_poses[[earlier, index]], self._offset)
         step = se2.relative(laser[0], laser[1])
         return is_new_viewpoint(step, self.parameters.viewpoint_spacing,
                                 self.parameters.viewpoint_turn)
 
-    def _incremental_pose(self, index: int, path_slots: np.ndarray) -> np.ndarray:
-        """First-seen pose relative to the nearest keyframe of the same trajectory.
-
-        Path poses are in stamp order: the anchor is the nearest earlier pose that is (or has
-        just become) a keyframe, else the nearest later one (a late first scan). Without any,
-        the pose itself starts the incremental solution.
+    def _incremental_pose(self, index: int, anchor: int, path_slots: np.ndarray
+                          ) -> np.ndarray:
+        """First-seen pose relative to the nearest keyframe of the same trajectory, pose
+        `anchor`: the nearest earlier pose that is (or has just become) a keyframe, else the
+        nearest later one (a late first scan); -1 when there is none, and the pose itself
+        starts the incremental solution. (Path poses are in stamp order.)
         """
-        keyframes = np.flatnonzero(path_slots >= 0)
-        if keyframes.size == 0:
+        if anchor < 0:
             return self._path_poses[index]
-        earlier = keyframes[keyframes < index]
-        anchor = earlier[-1] if earlier.size else keyframes[keyframes > index][0]
         step = se2.relative(self._path_poses[anchor], self._path_poses[index])
         return se2.compose(self._keyframes.incremental[path_slots[anchor]], step)
 
@@ -795,13 +802,13 @@ class ConsistencyMonitor:
                 kept = [self._nearest_of_each_visit(pairs[later == slot, 0], slot, budget)
                         for slot in crowded]
                 keyframes.budgeted[crowded] = True
-                self._kept_partners = np.union1d(self._kept_partners, np.concatenate(kept))
+                self._kept_partners = _sorted_insert(self._kept_partners, np.concatenate(kept))
         budgeted = keyframes.budgeted[pairs[:, 1]]
         if not budgeted.any():
             return pairs
         keep = ~budgeted
-        keep[budgeted] = np.isin(_pair_keys(pairs[budgeted, 0], pairs[budgeted, 1]),
-                                 self._kept_partners)
+        keep[budgeted] = _sorted_contains(self._kept_partners,
+                                          _pair_keys(pairs[budgeted, 0], pairs[budgeted, 1]))
         return pairs[keep]
 
     def _nearest_of_each_visit(self, partners: np.ndarray, slot: int, budget: int
@@ -874,6 +881,43 @@ def _read_only(array: np.ndarray) -> np.ndarray:
     view = array.view()
     view.setflags(write=False)
     return view
+
+
+def _claimed_twice(slots: np.ndarray, stamps: np.ndarray, slot_stamps: np.ndarray
+                   ) -> np.ndarray:
+    """Poses that lose their keyframe slot to a pose nearer its stamp.
+
+    Two poses within the stamp tolerance of one keyframe (scans stamped microseconds apart)
+    would both move it, to two places, on every update; the nearest keeps it (the first of
+    equals), the others are poses without a keyframe (their own scan is matched or folded).
+    """
+    matched = np.flatnonzero(slots >= 0)
+    losing = np.zeros(slots.size, dtype=bool)
+    if matched.size < 2:
+        return losing
+    offset = np.abs(stamps[matched] - slot_stamps[slots[matched]])
+    order = np.lexsort((matched, offset, slots[matched]))  # by slot, nearest first
+    repeated = np.zeros(order.size, dtype=bool)
+    repeated[1:] = slots[matched[order[1:]]] == slots[matched[order[:-1]]]
+    losing[matched[order[repeated]]] = True
+    return losing
+
+
+def _sorted_insert(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """`sorted_keys` with the `keys` it lacks, sorted: a merge, so that a keyframe's
+    arrival costs its own keys and a copy, not a sort of every key of the map."""
+    keys = np.unique(keys)
+    keys = keys[~_sorted_contains(sorted_keys, keys)]
+    return np.insert(sorted_keys, np.searchsorted(sorted_keys, keys), keys)
+
+
+def _sorted_contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Whether each of `keys` is in `sorted_keys` (binary search: no pass over the map)."""
+    where = np.searchsorted(sorted_keys, keys)
+    inside = where < sorted_keys.size
+    found = np.zeros(keys.shape, dtype=bool)
+    found[inside] = sorted_keys[where[inside]] == keys[inside]
+    return found
 
 
 def _rank_of_slot(order: np.ndarray) -> np.ndarray:

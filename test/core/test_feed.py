@@ -174,6 +174,15 @@ def test_stamp_gaps_count_missing_scans():
     assert gaps.missing == 3
 
 
+def test_scans_published_twice_do_not_shrink_the_period():
+    gaps = ScanGaps()
+    for stamp in np.arange(40) * 0.1:  # a 10 Hz driver publishing every scan twice
+        assert gaps.add(float(stamp)) == 0
+        assert gaps.add(float(stamp) + 6e-6) == 0
+    assert gaps.add(3.9 + 0.3) == 2  # the period stays 0.1 s: two scans never came
+    assert gaps.missing == 2
+
+
 def _sample(stamp, pose):
     return PoseSample(stamp=stamp, pose=np.asarray(pose, dtype=float), frame_id='odom',
                       child_frame_id='base_link')

@@ -179,6 +179,31 @@ def test_small_moves_do_not_trigger_measures(intel):
     assert not summary.changed and summary.measured_pairs == 0
 
 
+def test_scans_stamped_microseconds_apart_do_not_move_their_keyframe(intel):
+    # Raw logs hold scans published twice a few microseconds apart (Intel at its native rate
+    # has 1,479): both poses fall within the stamp tolerance of the first one's keyframe.
+    stamps, ranges, poses, model = _by_stamp(intel)
+    twins = np.sort(np.concatenate([stamps[:12], stamps[:12] + 6e-6]))
+    twin_poses = np.repeat(poses[:12], 2, axis=0)
+    twin_poses[1::2] += np.array([0.03, 0.0, 0.0])  # the second copy's pose differs
+    single = ConsistencyMonitor()  # the oracle: the same scans published once
+    for stamp, scan in zip(stamps[:12], ranges[:12]):
+        single.add_scan(stamp, scan, model)
+    single.update_trajectory(stamps[:12], poses[:12])
+    monitor = ConsistencyMonitor()
+    for stamp, scan in zip(twins, np.repeat(ranges[:12], 2, axis=0)):
+        monitor.add_scan(stamp, scan, model)
+    first = monitor.update_trajectory(twins, twin_poses)
+    expected = single.snapshot()
+    assert first.new_keyframes == expected.keyframe_count  # every second copy is folded
+    assert monitor.snapshot().folded_scans == expected.folded_scans + 12
+    np.testing.assert_array_equal(monitor.snapshot().stamps, expected.stamps)
+    np.testing.assert_array_equal(monitor.snapshot().poses, expected.poses)
+    again = monitor.update_trajectory(twins, twin_poses)
+    assert again.moved_keyframes == 0 and again.measured_pairs == 0
+    assert again.unmatched_poses == 0
+
+
 def test_new_keyframe_after_a_loop_closure_is_chained_on_its_predecessor(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     monitor = ConsistencyMonitor()
