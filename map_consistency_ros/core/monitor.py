@@ -80,7 +80,7 @@ class MonitorSettings:
         1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
         (1.0, 1e9))
     max_partners: int = parameter(
-        300, 'a new viewpoint is measured against at most about this many earlier overlapping '
+        50, 'a new viewpoint is measured against at most about this many earlier overlapping '
         'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
         'when it arrives: bounds the cost per keyframe in places visited very often; 0: all',
         '', (0, 1_000_000))

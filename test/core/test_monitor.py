@@ -18,6 +18,8 @@ from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 FIRST, LAST = 270, 350
 # The incremental machinery against the batch test: every keyframe is a viewpoint.
 EVERY_KEYFRAME = ConsistencyParameters(viewpoint_spacing=0.0, viewpoint_turn=0.0)
+# ... and every pair: the batch test has no partner budget.
+ALL_PAIRS = MonitorSettings(max_partners=0)
 
 
 @pytest.fixture(scope='module')
@@ -30,7 +32,7 @@ def intel(shared_data):
 
 def _stream(stamps, ranges, poses, model, settings=None) -> ConsistencyMonitor:
     """Scans and growing trajectories in file order, as a SLAM front-end emits them."""
-    monitor = ConsistencyMonitor(EVERY_KEYFRAME, settings=settings)
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME, settings=settings or ALL_PAIRS)
     for index in range(len(stamps)):
         monitor.add_scan(stamps[index], ranges[index], model)
         monitor.update_trajectory(stamps[:index + 1], poses[:index + 1])
@@ -95,7 +97,7 @@ def test_streaming_equals_the_batch_test_in_stamp_order(intel, streamed):
 def test_loop_closure_measures_only_moved_pairs(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     half = len(stamps) // 2
-    monitor = ConsistencyMonitor(EVERY_KEYFRAME)
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME, ALL_PAIRS)
     for stamp, scan in zip(stamps, ranges):
         monitor.add_scan(stamp, scan, model)
     first = monitor.update_trajectory(stamps, poses)
@@ -131,7 +133,7 @@ def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
     after a loop closure moved keyframes: each update against the batch test."""
     stamps, ranges, poses, model = _by_stamp(intel)
     moved = _dragged(poses, 30)
-    monitor = ConsistencyMonitor(EVERY_KEYFRAME)
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME, ALL_PAIRS)
     for end in range(10, len(stamps) + 1, 10):
         for index in range(end - 10, end):
             monitor.add_scan(stamps[index], ranges[index], model)
@@ -379,7 +381,8 @@ def test_laser_offset_places_the_scans(intel):
     offset = np.array([0.2, -0.05, 0.1])
     keyframe_poses = se2.compose(poses[:30], np.broadcast_to(se2.inverse(offset), (30, 3)))
     monitor = ConsistencyMonitor(EVERY_KEYFRAME,
-                                 settings=MonitorSettings(laser_offset=tuple(offset)))
+                                 settings=MonitorSettings(laser_offset=tuple(offset),
+                                                          max_partners=0))
     for stamp, scan in zip(stamps[:30], ranges[:30]):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps[:30], keyframe_poses)
