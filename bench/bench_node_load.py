@@ -142,8 +142,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
 
-    from map_consistency_ros.core import se2
-    from map_consistency_ros.core.viewpoints import viewpoint_rows
+    from map_consistency_ros.core.geometry import se2, viewpoint_rows
     from map_consistency_ros.io import messages
     from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
     from map_consistency_ros.ros.conversions import message_class

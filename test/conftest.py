@@ -84,7 +84,7 @@ def slam_toolbox_stream(shared_data):
 
     import numpy as np
 
-    from map_consistency_ros.core import se2
+    from map_consistency_ros.core.geometry import se2
     from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
     scans, pivot, loop, every = 120, 40, 85, 10

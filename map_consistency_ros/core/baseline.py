@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.geometry import ScanSet
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 

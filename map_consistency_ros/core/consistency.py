@@ -16,10 +16,10 @@ import numpy as np
 from numba import njit
 
 from map_consistency_ros.core import statistics
-from map_consistency_ros.core.measure import PairMeasures, pair_measures, pairs_point_distances
+from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, candidate_pairs,
+                                               extents_overlap, pair_measures,
+                                               pairs_point_distances)
 from map_consistency_ros.core.parameters import parameter
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.spatial_index import candidate_pairs, extents_overlap
 
 Progress = Callable[[int, int], None]
 

@@ -16,7 +16,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 from numba import njit
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.posegraph import PoseGraph
 
 _SMALL_ANGLE = 1e-5

@@ -30,16 +30,15 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from map_consistency_ros.core import se2, statistics
+from map_consistency_ros.core import statistics
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   Progress, check_consistency,
                                                   inconsistent_endpoints, pair_endpoints,
                                                   robust_statistic)
-from map_consistency_ros.core.measure import pair_measures
+from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
 from map_consistency_ros.core.parameters import parameter, specs
 from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
                                                    register_submaps, surface_points)
-from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet
 
 MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
 PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)

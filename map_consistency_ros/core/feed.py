@@ -34,8 +34,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.graph_bridge import BridgeCounts, SlamToolboxBridge
 from map_consistency_ros.core.monitor import (ConsistencyMonitor, MonitorSettings,
                                                MonitorSnapshot, UpdateSummary)
@@ -418,7 +418,7 @@ def warm_up() -> None:
     node pays it at start instead of on its first update.
     """
     from map_consistency_ros.core.explanation import ExplanationSettings, explain
-    from map_consistency_ros.core.scan_geometry import SensorModel
+    from map_consistency_ros.core.geometry import SensorModel
     model = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 90, max_range=8.0)
     bearings = model.bearings(91)
     walk, revisit = 100, 8

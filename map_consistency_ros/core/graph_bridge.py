@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 
 
 @dataclass(frozen=True)

@@ -28,18 +28,15 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.arrays import with_rows
+from map_consistency_ros.core.geometry import se2, with_rows
 # _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   _robust_sums, evaluate_pairs, local_scales)
-from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
+                                               SensorModel, is_new_viewpoint, pair_measures)
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
                                                 check_constraint_rows, split_constraint_rows)
-from map_consistency_ros.core.scan_geometry import SCAN_ARRAYS, ScanSet, SensorModel
-from map_consistency_ros.core.spatial_index import ScanExtentIndex
-from map_consistency_ros.core.viewpoints import is_new_viewpoint
 
 # Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
 # threads for a handful of pairs costs more than it saves; from about a hundred, two threads

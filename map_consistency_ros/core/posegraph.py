@@ -13,7 +13,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 
 # [stamp_from, stamp_to, dx, dy, dtheta, I11, I12, I13, I22, I23, I33]: stamps in seconds,
 # the pose of `to` in the frame of `from`, the upper triangle of the 3x3 information matrix.

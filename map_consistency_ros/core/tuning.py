@@ -19,15 +19,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   average_inconsistency, check_consistency)
 from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
-from map_consistency_ros.core.measure import PairMeasures, pair_measures
+from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, SensorModel, candidate_pairs,
+                                               pair_measures, se2)
 from map_consistency_ros.core.parameters import parameter
 from map_consistency_ros.core.posegraph import PoseGraph
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
-from map_consistency_ros.core.spatial_index import candidate_pairs
 
 Progress = Callable[[int, int], None]
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0

@@ -34,12 +34,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
 from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
                                                    surface_points)
-from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
 from map_consistency_ros.io.datasets import RawBag, match_scans
 

@@ -22,13 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic,
                                                pair_log_likelihoods)
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
 from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model

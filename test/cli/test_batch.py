@@ -176,7 +176,7 @@ def test_no_map_at_all_is_bad_input(tmp_path, capsys):
 def _room_graph(room_log, path):
     """The room of `room_log` as a g2o graph: a vertex per scan at its logged pose, odometry
     edges, and each scan as a ROBOTLASER1 line (180 beams over 180 degrees, laser at the robot)."""
-    from map_consistency_ros.core import se2
+    from map_consistency_ros.core.geometry import se2
     _, poses, ranges = room_log()
     lines = []
     for index, (pose, scan) in enumerate(zip(poses, ranges)):

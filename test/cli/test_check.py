@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli.main import main
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import viewpoint_rows
 
 
 def test_consistent_room_exits_0_and_writes_outputs(strict_json, room_log, tmp_path, capsys):

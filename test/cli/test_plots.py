@@ -6,7 +6,7 @@ import pytest
 
 from map_consistency_ros.cli import plots
 from map_consistency_ros.core.explanation import ChangedPlace, check_map
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.geometry import ScanSet, SensorModel
 
 
 def _room_figure(scale: float, points: int):

@@ -181,7 +181,7 @@ def test_bad_bags_exit_2(shared_data, tmp_path, capsys, round_trip):
 
 
 def test_no_matching_poses(tmp_path, capsys):
-    from map_consistency_ros.core.scan_geometry import SensorModel
+    from map_consistency_ros.core.geometry import SensorModel
     model = SensorModel(angle_min=-1.5, angle_increment=0.5, max_range=10.0)
     with BagWriter(tmp_path / 'offset') as writer:
         for stamp in (1.0, 2.0, 3.0):
@@ -288,7 +288,7 @@ def record_raw(path, received, types):
 @pytest.fixture(scope='module')
 def wrong_loop_closure(round_trip):
     """The round-trip run, then a last trajectory that bends its final third by 0.15 rad."""
-    from map_consistency_ros.core import se2
+    from map_consistency_ros.core.geometry import se2
     from map_consistency_ros.core.records import KeyframeEstimate, Scan
     folder = round_trip[0]
     with BagReader([folder / 'bag']) as bag:

@@ -1,7 +1,7 @@
 """Growing arrays by rows."""
 import numpy as np
 
-from map_consistency_ros.core.arrays import with_rows
+from map_consistency_ros.core.geometry import with_rows
 
 
 def test_rows_are_kept_and_the_new_ones_filled():

@@ -8,7 +8,7 @@ from map_consistency_ros.core import baseline
 from map_consistency_ros.core.baseline import (FREE, OCCUPIED, UNKNOWN, BaselineParameters,
                                                PairLikelihoods, local_grids, map_statistic,
                                                pair_log_likelihoods)
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 

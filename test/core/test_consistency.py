@@ -2,12 +2,11 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2, statistics
+from map_consistency_ros.core import statistics
 from map_consistency_ros.core.consistency import (
     ConsistencyParameters, average_inconsistency, check_consistency, evaluate_pairs,
     inconsistent_endpoints, local_pairs, local_scales)
-from map_consistency_ros.core.measure import PairMeasures
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.geometry import PairMeasures, ScanSet, se2
 from map_consistency_ros.io import carmen
 
 NO_TRIM = ConsistencyParameters(trim_largest=0)

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core import statistics
+from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import (MISALIGNED, ExplanationSettings,
                                                   RegistrationCache, check_map,
                                                   explain)
-from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.core.registration import register_submaps, surface_points
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 

@@ -3,15 +3,13 @@ is a misalignment, a gross error is never a change."""
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.explanation import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
                                                   ExplanationSettings, RegistrationCache,
                                                   _agreeing_registrations, _confirmed,
                                                   _longest_run, _PointMoments, check_map,
                                                   explain)
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.dcs import optimize
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.graph_bridge import (BridgeSettings, SlamToolboxBridge,
                                                    fit_rotations, interpolate_rotations)
 from map_consistency_ros.core.posegraph import PoseGraph

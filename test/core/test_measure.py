@@ -5,11 +5,9 @@ import numpy as np
 import pytest
 import shapely
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.measure import (PairMeasures, pair_measures, pair_measures_naive,
-                                              pairs_point_distances, point_distances)
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
-from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, SensorModel, candidate_pairs,
+                                               pair_measures, pair_measures_naive,
+                                               pairs_point_distances, point_distances, se2)
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 RTOL = 1e-9

@@ -2,10 +2,9 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
                                                    surface_points)
-from map_consistency_ros.core.scan_geometry import ScanSet
 from map_consistency_ros.io import carmen
 
 

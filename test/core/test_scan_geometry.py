@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 import shapely
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.geometry import ScanSet, SensorModel, se2
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 HALF_CIRCLE = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 4, max_range=8.0,

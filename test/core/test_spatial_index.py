@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.spatial_index import ScanExtentIndex, candidate_pairs
+from map_consistency_ros.core.geometry import ScanExtentIndex, ScanSet, candidate_pairs
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 

@@ -6,9 +6,7 @@ import pytest
 
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.dcs import optimize
-from map_consistency_ros.core.measure import pair_measures_naive
-from map_consistency_ros.core.spatial_index import candidate_pairs
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import candidate_pairs, pair_measures_naive, se2
 from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningSettings, _measure_moved,
                                             tune_dcs)
 from map_consistency_ros.io import carmen

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.geometry import is_new_viewpoint, viewpoint_rows
 from map_consistency_ros.core.monitor import ConsistencyMonitor
-from map_consistency_ros.core.viewpoints import is_new_viewpoint, viewpoint_rows
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 

@@ -3,7 +3,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.io.carmen import CarmenLog, LaserAngles
 from map_consistency_ros.io.errors import InputError

@@ -12,9 +12,9 @@ from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension
 from visualization_msgs.msg import MarkerArray, UVCoordinate
 
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io import messages
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.ros.conversions import message_class

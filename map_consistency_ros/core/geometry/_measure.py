@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.geometry._scan_geometry import ScanSet
 
 TWO_PI = 2.0 * math.pi
 # _rough_bearing is within 1.2e-5 rad of atan2; the slack covers that with a margin.

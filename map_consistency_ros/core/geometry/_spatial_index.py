@@ -11,7 +11,7 @@ from collections import defaultdict
 import numba
 import numpy as np
 
-from map_consistency_ros.core.arrays import with_rows
+from map_consistency_ros.core.geometry._arrays import with_rows
 
 
 def _checked_extents(extents: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 
 FULL_CIRCLE_TOLERANCE = 1e-9
 
