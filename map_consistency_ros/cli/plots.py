@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first
 import numpy as np  # noqa: E402
 from matplotlib.collections import PathCollection  # noqa: E402
 
-from map_consistency_ros.core import statistics  # noqa: E402
+from map_consistency_ros.core.consistency import statistics  # noqa: E402
 from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
 from map_consistency_ros.core.explanation import (  # noqa: E402
     Assessment, misaligned_endpoints)

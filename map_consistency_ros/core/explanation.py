@@ -30,11 +30,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from map_consistency_ros.core import statistics
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   Progress, check_consistency,
                                                   inconsistent_endpoints, pair_endpoints,
-                                                  robust_statistic)
+                                                  robust_statistic, statistics)
 from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
 from map_consistency_ros.core.parameters import parameter, specs
 from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,

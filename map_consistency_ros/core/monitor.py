@@ -29,9 +29,9 @@ import numba
 import numpy as np
 
 from map_consistency_ros.core.geometry import se2, with_rows
-# _robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
+# robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  _robust_sums, evaluate_pairs, local_scales)
+                                                  evaluate_pairs, local_scales, robust_sums)
 from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, pair_measures)
 from map_consistency_ros.core.parameters import parameter
@@ -273,7 +273,7 @@ class _PairCache:
         self._distance_sum[self.size:end] = measures.distance_sum
         self._point_count[self.size:end] = measures.point_count
         self._largest[self.size:end] = measures.largest
-        self._trimmed_sum[self.size:end], self._trimmed_count[self.size:end] = _robust_sums(
+        self._trimmed_sum[self.size:end], self._trimmed_count[self.size:end] = robust_sums(
             measures, self._trim)
         self.size = end
 

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.cli import pool
-from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoods, map_statistic,
-                                               pair_log_likelihoods)
-from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
-                                                  evaluate_pairs, local_pairs, local_scales)
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  PairLikelihoods, check_consistency,
+                                                  evaluate_pairs, local_pairs, local_scales,
+                                                  map_statistic, pair_log_likelihoods)
 from map_consistency_ros.core.explanation import (ExplanationSettings, RegistrationCache,
                                                   explain)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, candidate_pairs, pair_measures

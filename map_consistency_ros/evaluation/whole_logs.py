@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic,
-                                               pair_log_likelihoods)
-from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  check_consistency, map_statistic,
+                                                  pair_log_likelihoods)
 from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
 from map_consistency_ros.evaluation import runner

@@ -4,10 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import baseline
-from map_consistency_ros.core.baseline import (FREE, OCCUPIED, UNKNOWN, BaselineParameters,
-                                               PairLikelihoods, local_grids, map_statistic,
-                                               pair_log_likelihoods)
+from map_consistency_ros.core.consistency import (FREE, OCCUPIED, UNKNOWN, BaselineParameters,
+                                                  PairLikelihoods, local_grids, map_statistic,
+                                                  pair_log_likelihoods, traverse_cells)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -203,7 +202,7 @@ def test_traversal_visits_each_crossed_cell_once():
     rng = np.random.default_rng(3)
     for _ in range(50):
         start, end = rng.uniform(-6, 6, 2), rng.uniform(-6, 6, 2)
-        count = baseline._traverse(start[0], start[1], end[0], end[1], cells)
+        count = traverse_cells(start[0], start[1], end[0], end[1], cells)
         walked = [tuple(cell) for cell in cells[:count].tolist()]
         assert len(set(walked)) == count
         assert set(walked) == _crossed_cells(start, end)

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import statistics
-from map_consistency_ros.core.consistency import (
-    ConsistencyParameters, average_inconsistency, check_consistency, evaluate_pairs,
-    inconsistent_endpoints, local_pairs, local_scales)
+from map_consistency_ros.core.consistency import (ConsistencyParameters, average_inconsistency,
+                                                  check_consistency, evaluate_pairs,
+                                                  inconsistent_endpoints, local_pairs,
+                                                  local_scales, statistics)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, se2
 from map_consistency_ros.io import carmen
 

@@ -8,8 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import statistics
-from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.consistency import check_consistency, statistics
 from map_consistency_ros.core.explanation import (MISALIGNED, ExplanationSettings,
                                                   RegistrationCache, check_map,
                                                   explain)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from map_consistency_ros.core import statistics
+from map_consistency_ros.core.consistency import statistics
 
 
 @pytest.mark.parametrize('scale', [0.005, 0.03, 1.7])

@@ -88,7 +88,7 @@ def _axis_start(cell: int, start: float, delta: float) -> tuple[int, float, floa
 
 
 @numba.njit(cache=True)
-def _traverse(x0: float, y0: float, x1: float, y1: float, out: np.ndarray) -> int:
+def traverse_cells(x0: float, y0: float, x1: float, y1: float, out: np.ndarray) -> int:
     """Cells (in cell units) crossed by the segment, in order, ending at the end point's cell.
 
     Amanatides-Woo traversal: a 4-connected walk visits exactly |dx cells| + |dy cells| + 1
@@ -125,7 +125,7 @@ def _build_grids(ranges: np.ndarray, valid: np.ndarray, bearings: np.ndarray,
         for k in range(beam_count):
             x1 = centre + ranges[s, k] * np.cos(bearings[k]) / cell_size
             y1 = centre + ranges[s, k] * np.sin(bearings[k]) / cell_size
-            count = _traverse(centre, centre, x1, y1, cells)
+            count = traverse_cells(centre, centre, x1, y1, cells)
             # the end point cell is not free space: the beam stopped in it
             last = count - 1 if valid[s, k] else count
             for n in range(last):
@@ -173,7 +173,7 @@ def _score_on_grid(grid: np.ndarray, cell_size: float, grid_pose: np.ndarray,
     events = 0
     for k in range(ranges.shape[0]):
         reach = ranges[k] / cell_size
-        count = _traverse(sx, sy, sx + reach * np.cos(heading + bearings[k]),
+        count = traverse_cells(sx, sy, sx + reach * np.cos(heading + bearings[k]),
                           sy + reach * np.sin(heading + bearings[k]), cells)
         ex, ey = cells[count - 1, 0], cells[count - 1, 1]
         for n in range(count - 1):

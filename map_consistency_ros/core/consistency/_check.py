@@ -15,7 +15,7 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
-from map_consistency_ros.core import statistics
+from map_consistency_ros.core.consistency import statistics
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, candidate_pairs,
                                                extents_overlap, pair_measures,
                                                pairs_point_distances)
@@ -163,7 +163,7 @@ class ConsistencyResult:
         }
 
 
-def _robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndarray]:
+def robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndarray]:
     """M_ij and n_ij without each pair's `trim` largest distances."""
     if trim == 0:
         return measures.distance_sum, measures.point_count
@@ -184,7 +184,7 @@ def local_scales(measures: PairMeasures, scan_count: int,
     Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
     `robust`: see `robust_statistic`.
     """
-    distance_sum, count = (_robust_sums(measures, parameters.trim_largest) if robust is None
+    distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
                            else robust)
     return _scales_from_sums(measures.pairs, distance_sum, count, scan_count, parameters)
 
@@ -233,10 +233,10 @@ def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Which pairs have enough points to test, and their trimmed Psi_ij (NaN where untested).
 
-    `robust` are the pairs' trimmed (M_ij, n_ij) (`_robust_sums`) when the caller keeps them
+    `robust` are the pairs' trimmed (M_ij, n_ij) (`robust_sums`) when the caller keeps them
     per pair as it measures them (the incremental monitor), else they are computed here.
     """
-    distance_sum, count = (_robust_sums(measures, parameters.trim_largest) if robust is None
+    distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
                            else robust)
     tested = count >= parameters.min_points
     return tested, statistics.standardized_inconsistency(
@@ -261,7 +261,7 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
     if scales.shape != (scan_count,):
         raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
     pairs = measures.pairs
-    robust = _robust_sums(measures, parameters.trim_largest) if robust is None else robust
+    robust = robust_sums(measures, parameters.trim_largest) if robust is None else robust
     arrays = (np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
               np.asarray(robust[0], dtype=np.float64), np.asarray(robust[1], dtype=np.int64),
               scales, parameters.min_points, statistics.normal_quantile(parameters.alpha))
