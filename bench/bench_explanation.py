@@ -16,7 +16,7 @@ import argparse
 
 from bench_measure import median_time  # this folder's helpers: bench scripts run from here
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import explain
+from map_consistency_ros.core.verdict import explain
 from report_identity import explanation_maps
 
 

@@ -27,8 +27,8 @@ import numpy as np
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import Assessment, check_map
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import Assessment, check_map
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
 

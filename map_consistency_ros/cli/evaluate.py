@@ -37,7 +37,7 @@ from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import BaselineParameters, map_statistic
 from map_consistency_ros.evaluation import density, metrics, real_slam, runner, whole_logs
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
-from map_consistency_ros.core.explanation import ExplanationSettings, explain
+from map_consistency_ros.core.verdict import ExplanationSettings, explain
 from map_consistency_ros.evaluation.suite import (CORRECTED_LOGS, SuiteMap, SuiteParameters,
                                                   build_suite)
 from map_consistency_ros.io.errors import InputError

@@ -417,8 +417,8 @@ def warm_up() -> None:
     Loading the kernels from numba's cache costs the first call a few hundred milliseconds: a
     node pays it at start instead of on its first update.
     """
-    from map_consistency_ros.core.explanation import ExplanationSettings, explain
     from map_consistency_ros.core.geometry import SensorModel
+    from map_consistency_ros.core.verdict import ExplanationSettings, explain
     model = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 90, max_range=8.0)
     bearings = model.bearings(91)
     walk, revisit = 100, 8

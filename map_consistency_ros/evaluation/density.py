@@ -36,8 +36,7 @@ import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
-from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
-                                                   surface_points)
+from map_consistency_ros.core.verdict import RegistrationSettings, register_submaps, surface_points
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
 from map_consistency_ros.io.datasets import RawBag, match_scans
 
@@ -269,7 +268,7 @@ def load(case: Case, data: Path, checkout: Path):
 def run_case(case: Case, data: Path, checkout: Path) -> dict:
     """The verdict of `check` (its viewpoints, core.explanation.check_map at default settings)
     on the case, with its runtime, this process's peak memory and the truth."""
-    from map_consistency_ros.core.explanation import check_map
+    from map_consistency_ros.core.verdict import check_map
     scans, true_poses, moved = load(case, data, checkout)
     started = time.perf_counter()
     assessment = check_map(scans)

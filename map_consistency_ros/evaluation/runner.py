@@ -21,9 +21,8 @@ from map_consistency_ros.core.consistency import (BaselineParameters, Consistenc
                                                   PairLikelihoods, check_consistency,
                                                   evaluate_pairs, local_pairs, local_scales,
                                                   map_statistic, pair_log_likelihoods)
-from map_consistency_ros.core.explanation import (ExplanationSettings, RegistrationCache,
-                                                  explain)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, candidate_pairs, pair_measures
+from map_consistency_ros.core.verdict import ExplanationSettings, RegistrationCache, explain
 from map_consistency_ros.evaluation import metrics
 from map_consistency_ros.evaluation.suite import SuiteMap, SuiteParameters, keyframes
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model

@@ -25,8 +25,8 @@ import numpy as np
 from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
                                                   check_consistency, map_statistic,
                                                   pair_log_likelihoods)
-from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model

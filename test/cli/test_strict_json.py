@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli.main import main
-from map_consistency_ros.core import reporting
-from map_consistency_ros.core.reporting import to_json
+from map_consistency_ros.core.verdict import reporting, to_json
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 

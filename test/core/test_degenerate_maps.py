@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.consistency import check_consistency, statistics
-from map_consistency_ros.core.explanation import (MISALIGNED, ExplanationSettings,
-                                                  RegistrationCache, check_map,
-                                                  explain)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
-from map_consistency_ros.core.registration import register_submaps, surface_points
+from map_consistency_ros.core.verdict import (MISALIGNED, ExplanationSettings, RegistrationCache,
+                                              check_map, explain, register_submaps, surface_points)
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 

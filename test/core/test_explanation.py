@@ -4,12 +4,11 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
-                                                  ExplanationSettings, RegistrationCache,
-                                                  _agreeing_registrations, _confirmed,
-                                                  _longest_run, _PointMoments, check_map,
-                                                  explain)
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import (CHANGE, MISALIGNED, PAIR_CLASSES, UNREGISTERED,
+                                              ExplanationSettings, PointMoments, RegistrationCache,
+                                              agreeing_registrations, check_map,
+                                              corrections_confirmed, explain, longest_run)
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 
@@ -182,7 +181,7 @@ def test_rms_displacement_in_closed_form_equals_moving_the_points(shared_data):
                             np.column_stack([points, np.zeros(len(points))]))[:, :2]
         return np.sqrt(np.mean(np.sum((moved - points) ** 2, axis=1)))
 
-    moments = _PointMoments.of(scans)
+    moments = PointMoments.of(scans)
     rows = np.arange(40)
     expected = [direct(transforms[k], [k]) for k in rows]
     np.testing.assert_allclose(moments.displacement(transforms, rows), expected, rtol=1e-9,
@@ -231,31 +230,34 @@ def test_a_correction_must_mend_more_than_it_breaks(intel):
         rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
         return np.array([[*(pivot - rotation @ pivot), turn]])
 
-    assert _confirmed(turned, result, tasks, turn_about_the_seam(-1.0), settings).all()
-    assert not _confirmed(turned, result, tasks, np.zeros((1, 3)), settings).any()
-    assert not _confirmed(turned, result, tasks, turn_about_the_seam(1.0), settings).any()
+    def confirmed(correction):
+        return corrections_confirmed(turned, result, tasks, correction, settings)
+
+    assert confirmed(turn_about_the_seam(-1.0)).all()
+    assert not confirmed(np.zeros((1, 3))).any()
+    assert not confirmed(turn_about_the_seam(1.0)).any()
 
 
 def test_a_region_is_a_stretch_of_consecutive_scans():
-    assert _longest_run(np.array([562, 563, 622, 623, 624, 934, 938, 942, 943]), 5) == 4
-    assert _longest_run(np.array([3, 8, 13, 19]), 5) == 3
-    assert _longest_run(np.array([7]), 5) == 1 and _longest_run(np.zeros(0, np.int64), 5) == 0
+    assert longest_run(np.array([562, 563, 622, 623, 624, 934, 938, 942, 943]), 5) == 4
+    assert longest_run(np.array([3, 8, 13, 19]), 5) == 3
+    assert longest_run(np.array([7]), 5) == 1 and longest_run(np.zeros(0, np.int64), 5) == 0
 
 
 def test_registrations_agree_on_where_they_put_the_points_not_on_how_far(shared_data):
     """Corrections of equal size in opposite directions disagree."""
     log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     scans = ScanSet.from_ranges(log.ranges[:6], log.laser_poses[:6], carmen.sensor_model(log))
-    moments = _PointMoments.of(scans)
+    moments = PointMoments.of(scans)
     pairs = np.array([[0, 5]] * 6)
     tasks = np.arange(6)
     rows = np.arange(6)
     settings = ExplanationSettings()  # tolerance 0.1 m, three registrations
     east, west = np.array([0.2, 0.0, 0.0]), np.array([-0.2, 0.0, 0.0])
     split = np.array([east, east, east, west, west, west])
-    assert _agreeing_registrations(moments, rows, pairs, split, tasks, east, settings) == 3
+    assert agreeing_registrations(moments, rows, pairs, split, tasks, east, settings) == 3
     mostly = np.array([east, east, east, east + (0.0, 0.05, 0.0), east, west])
-    assert _agreeing_registrations(moments, rows, pairs, mostly, tasks, east, settings) == 5
+    assert agreeing_registrations(moments, rows, pairs, mostly, tasks, east, settings) == 5
 
 
 def test_a_chain_bent_everywhere_is_distorted(intel):
@@ -280,10 +282,10 @@ def test_changed_places_join_points_through_neighbouring_cells():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from map_consistency_ros.core.explanation import _places
+    from map_consistency_ros.core.verdict import place_labels
     rng = np.random.default_rng(11)
     points = np.concatenate([rng.normal(size=(600, 2)) * 4.0, rng.normal(size=(80, 2)) * 0.2 + 30])
-    labels = _places(points, 0.3)
+    labels = place_labels(points, 0.3)
     # Oracle: points whose cells touch (8-neighbourhood) are joined, transitively.
     cells = np.floor(points / 0.3).astype(int)
     touching = np.abs(cells[:, None] - cells[None]).max(axis=2) <= 1
@@ -291,7 +293,7 @@ def test_changed_places_join_points_through_neighbouring_cells():
     assert 10 < np.unique(oracle).size < 600
     same = labels[:, None] == labels[None]
     np.testing.assert_array_equal(same, oracle[:, None] == oracle[None])
-    assert _places(points[:1], 0.3).tolist() == [0]
+    assert place_labels(points[:1], 0.3).tolist() == [0]
 
 
 def _displaced_log(path, every, rotation_deg, shift_m, pivot_fraction):

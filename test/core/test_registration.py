@@ -3,8 +3,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.geometry import ScanSet, se2
-from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
-                                                   surface_points)
+from map_consistency_ros.core.verdict import RegistrationSettings, register_submaps, surface_points
 from map_consistency_ros.io import carmen
 
 
@@ -94,14 +93,14 @@ def test_undetermined_and_bad_tasks(intel):
 def test_the_grid_lookup_finds_the_nearest_point_within_the_gate(intel, gate):
     from scipy.spatial import cKDTree
 
-    from map_consistency_ros.core.registration import _grid, _nearest
+    from map_consistency_ros.core.verdict import nearest_point, point_grid
     scans = _scans(intel, np.arange(100, 111))
     surfaces = surface_points(scans.endpoints, scans.valid)
     points = surfaces.points
     queries = points[::7] + np.random.default_rng(5).normal(scale=0.2, size=(len(points[::7]), 2))
     distance, oracle = cKDTree(points).query(queries, distance_upper_bound=gate)
-    x0, y0, nx, ny, starts, items = _grid(points, 0.25, 0.5)
-    found = np.array([_nearest(points, x0, y0, nx, ny, 0.25, starts, items, x, y, gate)
+    x0, y0, nx, ny, starts, items = point_grid(points, 0.25, 0.5)
+    found = np.array([nearest_point(points, x0, y0, nx, ny, 0.25, starts, items, x, y, gate)
                       for x, y in queries])
     expected = np.where(np.isfinite(distance), oracle, -1)
     assert (found >= 0).sum() > 0.3 * len(found)
@@ -128,15 +127,15 @@ def test_surface_normals_are_perpendicular_to_the_beam_neighbours(intel):
 
 
 def test_the_closed_form_inverse_matches_lapack():
-    from map_consistency_ros.core.registration import _symmetric_inverse
+    from map_consistency_ros.core.verdict import symmetric_inverse
     rng = np.random.default_rng(11)
     for scale in (1e-3, 1.0, 1e4):
         jacobians = rng.normal(scale=scale, size=(40, 3))
         hessian = jacobians.T @ jacobians
         inverse = np.empty((3, 3))
-        determinant = _symmetric_inverse(hessian, inverse)
+        determinant = symmetric_inverse(hessian, inverse)
         assert determinant == pytest.approx(np.linalg.det(hessian), rel=1e-9)
         np.testing.assert_allclose(inverse, np.linalg.inv(hessian), rtol=1e-9)
     # a corridor: no information along x, so no inverse
     corridor = np.diag([0.0, 2.0, 3.0])
-    assert _symmetric_inverse(corridor, inverse) == 0.0
+    assert symmetric_inverse(corridor, inverse) == 0.0

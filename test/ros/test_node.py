@@ -32,8 +32,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import explain
 from map_consistency_ros.core.geometry import ScanSet, se2
+from map_consistency_ros.core.verdict import explain
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class

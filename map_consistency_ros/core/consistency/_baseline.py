@@ -174,7 +174,7 @@ def _score_on_grid(grid: np.ndarray, cell_size: float, grid_pose: np.ndarray,
     for k in range(ranges.shape[0]):
         reach = ranges[k] / cell_size
         count = traverse_cells(sx, sy, sx + reach * np.cos(heading + bearings[k]),
-                          sy + reach * np.sin(heading + bearings[k]), cells)
+                               sy + reach * np.sin(heading + bearings[k]), cells)
         ex, ey = cells[count - 1, 0], cells[count - 1, 1]
         for n in range(count - 1):
             cx, cy = cells[n, 0], cells[n, 1]

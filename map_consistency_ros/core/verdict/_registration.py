@@ -152,7 +152,7 @@ def _thin(points: np.ndarray, normals: np.ndarray, cell: float, need_normal: boo
 
 
 @numba.njit(cache=True)
-def _grid(points: np.ndarray, cell: float, margin: float):
+def point_grid(points: np.ndarray, cell: float, margin: float):
     """Counting-sort grid of `points`: origin, shape and per-cell start offsets into `items`."""
     x0 = points[:, 0].min() - margin
     y0 = points[:, 1].min() - margin
@@ -176,8 +176,8 @@ def _grid(points: np.ndarray, cell: float, margin: float):
 
 
 @numba.njit(cache=True)
-def _nearest(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: float,
-             starts: np.ndarray, items: np.ndarray, px: float, py: float, gate: float) -> int:
+def nearest_point(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: float,
+                  starts: np.ndarray, items: np.ndarray, px: float, py: float, gate: float) -> int:
     """Index of the nearest point within `gate` of p, -1 where none."""
     # only the cells the gate's square touches: at fine gates one to four, not nine
     low_x = max(int(math.floor((px - gate - x0) / cell)), 0)
@@ -210,7 +210,7 @@ def _associate(reference: np.ndarray, normals: np.ndarray, grid: tuple, cell: fl
         ox, oy = query[index, 0] - cx, query[index, 1] - cy
         rx, ry = cos * ox - sin * oy, sin * ox + cos * oy
         px, py = rx + cx + tx, ry + cy + ty
-        near = _nearest(reference, x0, y0, nx, ny, cell, starts, items, px, py, gate)
+        near = nearest_point(reference, x0, y0, nx, ny, cell, starts, items, px, py, gate)
         if near < 0:
             continue
         normal_x, normal_y = normals[near, 0], normals[near, 1]
@@ -247,7 +247,7 @@ def _normal_equations(residuals: np.ndarray, jacobians: np.ndarray, matched: int
 
 
 @numba.njit(cache=True)
-def _symmetric_inverse(matrix: np.ndarray, out: np.ndarray) -> float:
+def symmetric_inverse(matrix: np.ndarray, out: np.ndarray) -> float:
     """out = the inverse of the symmetric 3 x 3 `matrix` by its cofactors; returns the
     determinant (out holds the adjugate when that is 0).
 
@@ -274,7 +274,7 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
                   out_correction: np.ndarray, out_covariance: np.ndarray) -> tuple:
     # Cells of half the coarsest gate: a lookup scans 5 x 5 cells at first, 3 x 3 later.
     cell = 0.5 * gates[0]
-    grid = _grid(reference, cell, gates[0])
+    grid = point_grid(reference, cell, gates[0])
     cx, cy = query[:, 0].mean(), query[:, 1].mean()
     tx, ty, theta = 0.0, 0.0, 0.0
     residuals = np.empty(query.shape[0])
@@ -291,7 +291,7 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
                 break
             kept, square = _normal_equations(residuals, jacobians, matched, trim, hessian,
                                              gradient)
-            if abs(_symmetric_inverse(hessian, inverse)) < 1e-12:
+            if abs(symmetric_inverse(hessian, inverse)) < 1e-12:
                 break
             step = -(inverse @ gradient)
             tx += step[0]
@@ -301,7 +301,7 @@ def _register_one(reference: np.ndarray, normals: np.ndarray, query: np.ndarray,
             if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 2e-4:
                 break
     out_correction[0], out_correction[1], out_correction[2] = tx, ty, theta
-    determined = kept >= min_matches and abs(_symmetric_inverse(hessian, inverse)) > 1e-12
+    determined = kept >= min_matches and abs(symmetric_inverse(hessian, inverse)) > 1e-12
     if determined:
         out_covariance[:, :] = square / max(kept - 3, 1) * inverse
     else:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.explanation import Assessment
+from map_consistency_ros.core.verdict.explanation import Assessment
 
 
 def scan_names(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:

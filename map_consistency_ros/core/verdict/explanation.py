@@ -36,8 +36,8 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   robust_statistic, statistics)
 from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
 from map_consistency_ros.core.parameters import parameter, specs
-from map_consistency_ros.core.registration import (RegistrationSettings, Registrations,
-                                                   register_submaps, surface_points)
+from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
+                                                            register_submaps, surface_points)
 
 MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
 PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)
@@ -238,7 +238,7 @@ def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
 
 
 @dataclass(frozen=True)
-class _PointMoments:
+class PointMoments:
     """Per scan: the number of valid end points (N,), their mean (N, 2) and mean squared norm
     (N,): enough for the RMS displacement of any rigid transform, without the points."""
 
@@ -247,7 +247,7 @@ class _PointMoments:
     square: np.ndarray
 
     @classmethod
-    def of(cls, scans: ScanSet) -> _PointMoments:
+    def of(cls, scans: ScanSet) -> PointMoments:
         valid = scans.valid
         count = valid.sum(axis=1)
         safe = np.maximum(count, 1)
@@ -256,11 +256,11 @@ class _PointMoments:
                          np.where(valid, y, 0.0).sum(axis=1)], axis=1) / safe[:, None]
         return cls(count, mean, np.where(valid, x * x + y * y, 0.0).sum(axis=1) / safe)
 
-    def pooled(self, scans: np.ndarray) -> _PointMoments:
+    def pooled(self, scans: np.ndarray) -> PointMoments:
         """The moments of the points of `scans` taken together, as one set (1,)."""
         count = self.count[scans]
         weight = count / max(int(count.sum()), 1)
-        return _PointMoments(np.array([count.sum()]), (weight[:, None] * self.mean[scans]).sum(
+        return PointMoments(np.array([count.sum()]), (weight[:, None] * self.mean[scans]).sum(
             axis=0)[None], np.array([(weight * self.square[scans]).sum()]))
 
     def displacement(self, transforms: np.ndarray, rows: np.ndarray | None = None
@@ -370,9 +370,9 @@ def _root(parent: np.ndarray, node: int) -> int:
     return node
 
 
-def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.ndarray,
-                            transforms: np.ndarray, task_of_pair: np.ndarray,
-                            correction: np.ndarray, settings: ExplanationSettings) -> int:
+def agreeing_registrations(moments: PointMoments, rows: np.ndarray, pairs: np.ndarray,
+                           transforms: np.ndarray, task_of_pair: np.ndarray,
+                           correction: np.ndarray, settings: ExplanationSettings) -> int:
     """Independent registrations (tasks) whose correction places the later scan's points within
     the tolerance (RMS) of where the region's correction places them: a loop-closure error
     moves a stretch rigidly, so its submaps agree."""
@@ -383,7 +383,7 @@ def _agreeing_registrations(moments: _PointMoments, rows: np.ndarray, pairs: np.
     return int(np.unique(task_of_pair[rows[agree]]).size)
 
 
-def _consensus(points: _PointMoments, transforms: np.ndarray) -> np.ndarray:
+def _consensus(points: PointMoments, transforms: np.ndarray) -> np.ndarray:
     """The world transform among `transforms` (E, 3) that places the `points` (one pooled
     set) nearest to where the others place them: the median displacement to the others, the
     smallest. Not the median of x, y and theta taken apart: a world transform's translation
@@ -405,7 +405,7 @@ def _consensus(points: _PointMoments, transforms: np.ndarray) -> np.ndarray:
 _CONSENSUS_CANDIDATES = 200
 
 
-def _longest_run(scans: np.ndarray, gap: int) -> int:
+def longest_run(scans: np.ndarray, gap: int) -> int:
     """The most scans of sorted indices `scans` joined by steps of at most `gap`."""
     if scans.size == 0:
         return 0
@@ -450,8 +450,8 @@ def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
     return rows[picked], task_ids
 
 
-def _confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
-               transforms: np.ndarray, settings: ExplanationSettings) -> np.ndarray:
+def corrections_confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
+                          transforms: np.ndarray, settings: ExplanationSettings) -> np.ndarray:
     """(T,) whether each registration's correction (world transforms (T, 3) of the query
     submap) resolves at least `min_resolved_fraction` of the failing tested pairs between its
     two submaps, net of the passing pairs it breaks.
@@ -514,7 +514,7 @@ def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> boo
 
 
 def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
-             moments: _PointMoments, bad: np.ndarray, codes: np.ndarray,
+             moments: PointMoments, bad: np.ndarray, codes: np.ndarray,
              transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
              flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
     """Misaligned regions from the explained pairs (rows `explained` of `result`)."""
@@ -531,8 +531,8 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
         rows = np.flatnonzero(on_flagged & (labels[pairs[:, 0]] == label))
         moved = np.unique(pairs[rows, 1])
         reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
-        if min(_longest_run(moved, settings.block),
-               _longest_run(reference, settings.block)) < settings.min_region_scans:
+        if min(longest_run(moved, settings.block),
+               longest_run(reference, settings.block)) < settings.min_region_scans:
             continue  # scans out of place here and there, or a revisit seen from one scan
         registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
         registered = False
@@ -544,8 +544,8 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
             # registrations reach (a turn of 5 degrees moves points 20 m away by 1.7 m) makes
             # them snap onto the wrong walls, and agree on it.
             registered = (
-                _agreeing_registrations(moments, registered_rows, pairs, transforms,
-                                        task_of_pair, correction, settings)
+                agreeing_registrations(moments, registered_rows, pairs, transforms,
+                                       task_of_pair, correction, settings)
                 >= settings.min_registrations
                 and _resolved_fraction(scans, result, moved, reference, correction)
                 >= settings.min_resolved_fraction)
@@ -557,7 +557,7 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
             # beyond registration, no correction corroborates it: a displaced stretch of at
             # least a block, spread wider than any change, that several registrations fail on
             if (np.unique(task_of_pair[rows]).size < settings.min_registrations
-                    or _longest_run(moved, settings.block) < settings.block
+                    or longest_run(moved, settings.block) < settings.block
                     or not (_mostly_consecutive(pairs[rows], settings)
                             or _spans_beyond_changes(scans, result, explained[rows],
                                                      settings))):
@@ -580,7 +580,7 @@ def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> n
     return flagged
 
 
-def _places(points: np.ndarray, cell: float) -> np.ndarray:
+def place_labels(points: np.ndarray, cell: float) -> np.ndarray:
     """Labels (M,) of points (M, 2) joined through neighbouring cells of size `cell`."""
     cells = np.floor(points / cell).astype(np.int64)
     cells -= cells.min(axis=0) - 1  # every neighbour of a cell has non-negative coordinates
@@ -600,7 +600,7 @@ def _changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
     points, owners = pair_endpoints(scans, result, rows, settings.change_depth)
     if not len(points):
         return ()
-    labels = _places(points, settings.change_cell)
+    labels = place_labels(points, settings.change_cell)
     places = []
     for label in np.unique(labels):
         members = labels == label
@@ -622,7 +622,7 @@ def _spans_beyond_changes(scans: ScanSet, result: ConsistencyResult, rows: np.nd
     points, _ = pair_endpoints(scans, result, rows, settings.change_depth)
     if not len(points):
         return False
-    labels = _places(points, settings.change_cell)
+    labels = place_labels(points, settings.change_cell)
     low = np.full((labels.max() + 1, 2), np.inf)
     high = np.full((labels.max() + 1, 2), -np.inf)
     np.minimum.at(low, labels, points)
@@ -714,13 +714,13 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     task_transforms = registrations.world_transforms()
     transforms = task_transforms[task_of_pair]
     passes = _corrected_pairs_pass(scans, result, pairs, transforms)
-    moments = _PointMoments.of(scans)
+    moments = PointMoments.of(scans)
     displacement = moments.displacement(transforms, pairs[:, 1])
     codes = _classify(registrations, task_of_pair, passes, displacement, settings)
     candidates = np.unique(task_of_pair[codes == _CLASS_CODE[MISALIGNED]])
     unconfirmed = np.ones(len(tasks), dtype=bool)
-    unconfirmed[candidates] = ~_confirmed(scans, result, tasks[candidates],
-                                          task_transforms[candidates], settings)
+    unconfirmed[candidates] = ~corrections_confirmed(scans, result, tasks[candidates],
+                                                     task_transforms[candidates], settings)
     # a correction that breaks as much as it mends explains nothing: the failure is a change
     codes[(codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]] = _CLASS_CODE[CHANGE]
     misaligned = codes == _CLASS_CODE[MISALIGNED]
