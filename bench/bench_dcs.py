@@ -23,10 +23,9 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from map_consistency_ros.core.dcs import SparseSystem, optimize
+from map_consistency_ros.core.backend import (InconsistencyProfile, PoseGraph, SparseSystem,
+                                              TuningSettings, optimize, tune_dcs)
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.posegraph import PoseGraph
-from map_consistency_ros.core.tuning import InconsistencyProfile, TuningSettings, tune_dcs
 from map_consistency_ros.io.carmen import sensor_model
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 

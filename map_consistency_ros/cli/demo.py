@@ -23,10 +23,9 @@ import numpy as np
 
 from map_consistency_ros.cli import main as cli_main
 from map_consistency_ros.cli import check, replay, report
-from map_consistency_ros.core.dcs import optimize
+from map_consistency_ros.core.backend import PoseGraph, optimize
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.monitor import ConsistencyMonitor
-from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.core.verdict import explain
 
 DEMO_BAG = 'intel_demo.mcap'

@@ -30,13 +30,13 @@ import numpy as np
 
 from map_consistency_ros.core.geometry import se2, with_rows
 # robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
+from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
+                                              split_constraint_rows)
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   evaluate_pairs, local_scales, robust_sums)
 from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, pair_measures)
 from map_consistency_ros.core.parameters import parameter
-from map_consistency_ros.core.posegraph import (CONSTRAINT_WIDTH, PoseGraph,
-                                                check_constraint_rows, split_constraint_rows)
 
 # Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
 # threads for a handful of pairs costs more than it saves; from about a hundred, two threads

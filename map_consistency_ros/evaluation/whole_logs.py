@@ -110,7 +110,7 @@ def displaced_maps(dataset: str, data: Path, seams: int, seed: int) -> list[Whol
 
 def false_loop_maps(dataset: str, data: Path, seed: int) -> list[WholeLogMap]:
     """Least-squares maps of the built graph of `dataset` with FALSE_LOOPS false loop closures."""
-    from map_consistency_ros.core.dcs import optimize
+    from map_consistency_ros.core.backend import optimize
     from map_consistency_ros.io.datasets import (BuildSettings, build_graph, read_raw_bag,
                                                  read_relations)
     relations, bag_path, stride = BUILT_GRAPHS[dataset]

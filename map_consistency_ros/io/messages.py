@@ -17,8 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from map_consistency_ros.core.backend import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
 from map_consistency_ros.core.geometry import SensorModel, se2
-from map_consistency_ros.core.posegraph import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
 from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
                                               PoseSample, Record, Scan)
 

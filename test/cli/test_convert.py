@@ -154,8 +154,8 @@ LASER_OFFSET = np.array([0.1, -0.05, 0.02])
 @pytest.fixture(scope='module')
 def graph_bag(intel_log, tmp_path_factory):
     """A g2o graph of the first Intel scans (laser offset, two loop closures), converted."""
+    from map_consistency_ros.core.backend import PoseGraph
     from map_consistency_ros.core.geometry import se2
-    from map_consistency_ros.core.posegraph import PoseGraph
     from map_consistency_ros.io import g2o
     log = first_records(carmen.read_carmen_log(intel_log), GRAPH_SCANS)
     offsets = np.broadcast_to(LASER_OFFSET, (GRAPH_SCANS, 3))

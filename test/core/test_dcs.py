@@ -10,10 +10,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.dcs import (SparseSystem, dcs_scales, edge_residuals, optimize,
-                                          robust_cost)
+from map_consistency_ros.core.backend import (PoseGraph, SparseSystem, dcs_scales, edge_residuals,
+                                              optimize, robust_cost)
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 from map_consistency_ros.io.g2o import read_g2o
 

@@ -16,11 +16,10 @@ from dataclasses import dataclass, fields
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.dcs import optimize
+from map_consistency_ros.core.backend import PoseGraph, optimize
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.graph_bridge import (BridgeSettings, SlamToolboxBridge,
                                                    fit_rotations, interpolate_rotations)
-from map_consistency_ros.core.posegraph import PoseGraph
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
 STEP_SIGMA_XY = 0.01

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
+from map_consistency_ros.core.backend import PoseGraph
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.posegraph import PoseGraph
 
 
 def _graph(**overrides) -> PoseGraph:
@@ -75,7 +75,7 @@ def test_odometry_chain_follows_the_first_of_parallel_sequential_edges():
 
 
 def test_graphs_that_cannot_be_tuned_honestly_are_named():
-    from map_consistency_ros.core.posegraph import tuning_problem
+    from map_consistency_ros.core.backend import tuning_problem
     assert tuning_problem(_graph()) is None
     sparse = _graph(edge_from=[0, 2], edge_to=[1, 3], measurements=np.zeros((2, 3)),
                     information=np.repeat(np.eye(3)[None], 2, axis=0))
@@ -92,8 +92,8 @@ def test_graphs_that_cannot_be_tuned_honestly_are_named():
 
 
 def test_constraint_rows_round_trip_and_refusals():
-    from map_consistency_ros.core.posegraph import (check_constraint_rows, constraint_rows,
-                                                    split_constraint_rows)
+    from map_consistency_ros.core.backend import (check_constraint_rows, constraint_rows,
+                                                  split_constraint_rows)
     information = np.array([[[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 9.0]]] * 2)
     measurements = np.array([[1.0, 2.0, 0.3], [0.0, -1.0, 3.0]])
     rows = constraint_rows(np.array([1.0, 2.0]), np.array([2.0, 5.0]), measurements,

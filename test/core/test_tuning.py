@@ -4,11 +4,10 @@ import math
 import numpy as np
 import pytest
 
+from map_consistency_ros.core.backend import (InconsistencyProfile, TuningSettings, measure_moved,
+                                              optimize, tune_dcs)
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.dcs import optimize
 from map_consistency_ros.core.geometry import candidate_pairs, pair_measures_naive, se2
-from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningSettings, _measure_moved,
-                                            tune_dcs)
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
@@ -129,12 +128,12 @@ def test_only_pairs_that_moved_are_measured_again(intel_excerpt):
     profile = InconsistencyProfile(graph, ranges, model, offset, SEARCH)
     first = profile.scans_at(graph.poses)
     pairs = candidate_pairs(first.extents)
-    measured = _measure_moved(first, pairs, None, 1e-4)
+    measured = measure_moved(first, pairs, None, 1e-4)
     moved_poses = se2.compose(np.array([2.0, -1.0, 0.3]), graph.poses)
     moved_poses[7] = se2.compose(moved_poses[7], [0.05, 0.0, 0.0])
     second = profile.scans_at(moved_poses)
     second_pairs = candidate_pairs(second.extents)
-    again = _measure_moved(second, second_pairs, measured, 1e-4)
+    again = measure_moved(second, second_pairs, measured, 1e-4)
     naive = pair_measures_naive(second, second_pairs, keep_largest=0)
     np.testing.assert_array_equal(again.measures.point_count, naive.point_count)
     np.testing.assert_allclose(again.measures.distance_sum, naive.distance_sum, rtol=1e-9,

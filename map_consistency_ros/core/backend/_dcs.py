@@ -17,7 +17,7 @@ import scipy.sparse.linalg
 from numba import njit
 
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.backend._posegraph import PoseGraph
 
 _SMALL_ANGLE = 1e-5
 _SINGULAR = 'the normal equations are singular: no edge constrains the free vertices'

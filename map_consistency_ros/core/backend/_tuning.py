@@ -21,11 +21,11 @@ import numpy as np
 
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   average_inconsistency, check_consistency)
-from map_consistency_ros.core.dcs import OptimizationResult, SparseSystem, optimize
+from map_consistency_ros.core.backend._dcs import OptimizationResult, SparseSystem, optimize
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, SensorModel, candidate_pairs,
                                                pair_measures, se2)
 from map_consistency_ros.core.parameters import parameter
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.backend._posegraph import PoseGraph
 
 Progress = Callable[[int, int], None]
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
@@ -138,7 +138,7 @@ class InconsistencyProfile:
         self.scans = ScanSet.from_ranges(ranges, self.sensor_poses(graph.poses), model)
         self._system = SparseSystem(graph)
         self._cache: dict[float, Evaluation] = {}
-        self._measured: _MeasuredPairs | None = None
+        self._measured: MeasuredPairs | None = None
 
     def sensor_poses(self, poses: np.ndarray) -> np.ndarray:
         """Laser poses (N, 3) of the vertices at `poses`."""
@@ -189,13 +189,13 @@ class InconsistencyProfile:
         if not (np.isfinite(result.cost) and np.all(np.isfinite(result.poses))):
             return math.inf
         scans = self.scans_at(result.poses)
-        self._measured = _measure_moved(scans, candidate_pairs(scans.extents), self._measured,
-                                        self.settings.reuse_tolerance)
+        self._measured = measure_moved(scans, candidate_pairs(scans.extents), self._measured,
+                                       self.settings.reuse_tolerance)
         return average_inconsistency(self._measured.measures)
 
 
 @dataclass(frozen=True)
-class _MeasuredPairs:
+class MeasuredPairs:
     """Measures of sorted candidate pairs (P, 2), with the relative sensor pose (P, 3) of scan j
     in scan i's frame at which each was measured."""
 
@@ -203,8 +203,8 @@ class _MeasuredPairs:
     relative: np.ndarray
 
 
-def _measure_moved(scans: ScanSet, pairs: np.ndarray, previous: _MeasuredPairs | None,
-                   tolerance: float) -> _MeasuredPairs:
+def measure_moved(scans: ScanSet, pairs: np.ndarray, previous: MeasuredPairs | None,
+                  tolerance: float) -> MeasuredPairs:
     """The measures of `pairs` (sorted) on `scans`, measuring only the pairs that are new or
     whose end points moved by more than `tolerance` relative to each other since `previous`.
 
@@ -235,7 +235,7 @@ def _measure_moved(scans: ScanSet, pairs: np.ndarray, previous: _MeasuredPairs |
         relative[reuse] = then[reuse]
     measures = pair_measures(scans, pairs[stale], keep_largest=0)
     sums[stale], counts[stale] = measures.distance_sum, measures.point_count
-    return _MeasuredPairs(PairMeasures(pairs=pairs, distance_sum=sums, point_count=counts,
+    return MeasuredPairs(PairMeasures(pairs=pairs, distance_sum=sums, point_count=counts,
                                        largest=np.zeros((len(pairs), 0))), relative)
 
 
