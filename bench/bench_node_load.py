@@ -122,8 +122,7 @@ def peak_rss_mib(pid: int) -> float:
 def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
     """Seconds of each Path update of the same stream through the feed without ROS (the
     reference: what the node adds is conversion, queueing, markers, publishing, sharing)."""
-    from map_consistency_ros.core.feed import MonitorFeed
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.live import KeyframeEstimate, MonitorFeed, Scan
     feed = MonitorFeed()
     seconds = []
     for k in range(len(stamps)):

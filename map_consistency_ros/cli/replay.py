@@ -42,11 +42,11 @@ import numpy as np
 from map_consistency_ros.cli import check, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
 from map_consistency_ros.core.geometry import ScanSet
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
+from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
+                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
+                                           MonitorSnapshot, PoseSample, Scan)
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
-from map_consistency_ros.core.records import GraphSnapshot, KeyframeEstimate, PoseSample, Scan
 from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.geometry import SensorModel, se2
-from map_consistency_ros.core.records import Record
+from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE,
                                              PATH_TYPE, POSE_COVARIANCE_TYPE, POSE_TYPES,

@@ -18,7 +18,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from map_consistency_ros.core.geometry import se2, with_rows
-from map_consistency_ros.core.monitor import MonitorSnapshot
+from map_consistency_ros.core.live import MonitorSnapshot
 from map_consistency_ros.core.verdict import Assessment
 
 KEYFRAME_NAMESPACE = 'keyframes'

@@ -42,13 +42,13 @@ from visualization_msgs.msg import MarkerArray
 
 from map_consistency_ros.core.backend import TuningSettings, tune_dcs, tuning_problem
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.feed import FeedSettings, MonitorFeed, warm_up
 from map_consistency_ros.core.geometry import ScanSet
-from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
+from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
+                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
+                                           MonitorSnapshot, PoseSample, Scan, sensor_poses,
+                                           warm_up)
 from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
                                                  unknown_names)
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Scan)
 from map_consistency_ros.core.verdict import (Assessment, ExplanationSettings, RegistrationCache,
                                               assessment_report, explain, misaligned_endpoints,
                                               plain, to_json)

@@ -15,8 +15,7 @@ from dataclasses import dataclass
 
 from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.feed import FeedSettings
-from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings
 from map_consistency_ros.core.parameters import markdown_table, parameter, specs, yaml_document
 from map_consistency_ros.core.verdict import ExplanationSettings
 

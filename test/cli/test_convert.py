@@ -6,7 +6,7 @@ import pytest
 
 from map_consistency_ros.cli.main import main
 from map_consistency_ros.io import carmen
-from map_consistency_ros.core.records import Constraints, KeyframeEstimate, Scan
+from map_consistency_ros.core.live import Constraints, KeyframeEstimate, Scan
 from map_consistency_ros.io.bags import BagReader
 
 SCANS = 40

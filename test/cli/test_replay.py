@@ -289,7 +289,7 @@ def record_raw(path, received, types):
 def wrong_loop_closure(round_trip):
     """The round-trip run, then a last trajectory that bends its final third by 0.15 rad."""
     from map_consistency_ros.core.geometry import se2
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.live import KeyframeEstimate, Scan
     folder = round_trip[0]
     with BagReader([folder / 'bag']) as bag:
         records = [record for _, record in bag.records()]
@@ -410,7 +410,7 @@ def test_bundled_demo_bag(shared_data):
     from importlib import resources
 
     from map_consistency_ros.io import carmen
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.live import KeyframeEstimate, Scan
     demo = resources.files('map_consistency_ros') / 'data' / 'intel_demo.mcap'
     log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     with BagReader([demo]) as bag:

@@ -5,12 +5,11 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
-from map_consistency_ros.core.feed import (RESET_CONFIRMATIONS, Applied, FeedSettings,
-                                           MonitorFeed, PoseKeyframer, ScanGaps)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel, viewpoint_rows
-from map_consistency_ros.core.monitor import MonitorSettings
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Scan)
+from map_consistency_ros.core.live import (RESET_CONFIRMATIONS, Applied, Constraints, FeedSettings,
+                                           GraphSnapshot, KeyframeEstimate, MonitorFeed,
+                                           MonitorSettings, PoseKeyframer, PoseSample, Scan,
+                                           ScanGaps)
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 MODEL = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 179, max_range=81.83)
@@ -320,18 +319,19 @@ def test_warm_up_loads_every_kernel_of_both_stages():
     """In a fresh interpreter (this one has run the kernels already)."""
     import subprocess
     import sys
-    # the kernels of both stages, found by name among the loaded modules of the core
-    kernels = ('_critical_counts', '_pair_kernel', '_pairs_distances', '_register_tasks',
-               '_thin_ranges')
+    # the modules that hold the kernels, through the public functions they define
     probe = ('import sys\n'
-             'from map_consistency_ros.core import feed\n'
-             'feed.warm_up()\n'
-             f'names = {kernels!r}\n'
-             'found = {name: kernel for module in list(sys.modules.values())\n'
-             '         if module.__name__.startswith("map_consistency_ros.core")\n'
-             '         for name, kernel in vars(module).items()\n'
-             '         if name in names and kernel.py_func.__module__ == module.__name__}\n'
-             'print(",".join(f"{name}:{len(found[name].signatures)}" for name in names))\n')
+             'from map_consistency_ros.core.consistency import statistics\n'
+             'from map_consistency_ros.core.geometry import pair_measures\n'
+             'from map_consistency_ros.core.live import warm_up\n'
+             'from map_consistency_ros.core.verdict import register_submaps\n'
+             'warm_up()\n'
+             'measure = sys.modules[pair_measures.__module__]\n'
+             'registration = sys.modules[register_submaps.__module__]\n'
+             'kernels = [measure._pair_kernel, measure._pairs_distances, '
+             'registration._thin_ranges, registration._register_tasks, '
+             'statistics._critical_counts]\n'
+             'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
                           check=True)
-    assert done.stdout.strip() == ','.join(f'{name}:1' for name in kernels)
+    assert done.stdout.strip() == '1,1,1,1,1'

@@ -18,8 +18,8 @@ import pytest
 
 from map_consistency_ros.core.backend import PoseGraph, optimize
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.graph_bridge import (BridgeSettings, SlamToolboxBridge,
-                                                   fit_rotations, interpolate_rotations)
+from map_consistency_ros.core.live import (BridgeSettings, SlamToolboxBridge, fit_rotations,
+                                           interpolate_rotations)
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
 STEP_SIGMA_XY = 0.01

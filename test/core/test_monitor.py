@@ -9,7 +9,7 @@ import pytest
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   check_consistency, inconsistent_endpoints)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel, point_distances, se2
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings
+from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 # Scans 270..349 of the Intel log: one revisit, and two stamps out of file order (294/295).

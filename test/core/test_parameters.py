@@ -6,8 +6,7 @@ import yaml
 
 from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.feed import FeedSettings
-from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings
 from map_consistency_ros.core.parameters import (closest_name, settings_from_values, specs,
                                                  unknown_names, yaml_document)
 

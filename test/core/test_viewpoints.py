@@ -6,7 +6,7 @@ import pytest
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import is_new_viewpoint, viewpoint_rows
-from map_consistency_ros.core.monitor import ConsistencyMonitor
+from map_consistency_ros.core.live import ConsistencyMonitor
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 

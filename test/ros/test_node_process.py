@@ -408,7 +408,7 @@ def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shar
 _COUNTING_THREADS = """
 import sys
 import numba
-from map_consistency_ros.core import monitor
+from map_consistency_ros.core.live import monitor
 from map_consistency_ros.ros import node
 real_measures, real_recompute = monitor.pair_measures, monitor.ConsistencyMonitor.recompute
 most, job = {}, []

@@ -36,12 +36,12 @@ import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.graph_bridge import BridgeCounts, SlamToolboxBridge
-from map_consistency_ros.core.monitor import (ConsistencyMonitor, MonitorSettings,
-                                               MonitorSnapshot, UpdateSummary)
+from map_consistency_ros.core.live._graph_bridge import BridgeCounts, SlamToolboxBridge
+from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                                    PoseSample, Record, Scan)
+from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
+                                                   MonitorSnapshot, UpdateSummary)
 from map_consistency_ros.core.parameters import parameter
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Record, Scan)
 
 POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox')
 # Sources whose single poses are keyframed by travel; slam_toolbox's poses go to its bridge.

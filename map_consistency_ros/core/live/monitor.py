@@ -28,14 +28,14 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from map_consistency_ros.core.geometry import se2, with_rows
-# robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
                                               split_constraint_rows)
+# robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   evaluate_pairs, local_scales, robust_sums)
 from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
-                                               SensorModel, is_new_viewpoint, pair_measures)
+                                               SensorModel, is_new_viewpoint, pair_measures, se2,
+                                               with_rows)
 from map_consistency_ros.core.parameters import parameter
 
 # Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
