@@ -34,8 +34,8 @@ INTEL = ROOT.parent / 'shared' / 'data' / 'intel'
 
 
 def _load_oracle():
-    """The tests' GTSAM formulation of the problem (test/core/test_dcs.py), so both agree."""
-    path = ROOT / 'test' / 'core' / 'test_dcs.py'
+    """The tests' GTSAM formulation (test/core/backend/test_dcs.py), so both agree."""
+    path = ROOT / 'test' / 'core' / 'backend' / 'test_dcs.py'
     spec = importlib.util.spec_from_file_location('dcs_oracle', path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

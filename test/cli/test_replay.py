@@ -311,7 +311,8 @@ def wrong_loop_closure(round_trip):
 
 
 def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop_closure,
-                                                         ros_domain, tmp_path):
+                                                         ros_domain, tmp_path,
+                                                         process_stopper):
     """The node fed by --publish, and replay of a recording of its inputs, agree on the map
     both judged: the node's report whose judged_stamp and judged_keyframes are replay's (not
     the newest report after a quiet spell, which on a busy machine may judge an older
@@ -371,12 +372,7 @@ def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop
     finally:
         if listener is not None:
             listener.close()
-        node.terminate()
-        try:
-            node.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            node.kill()
-            node.wait(timeout=10)
+        process_stopper(node)
     assert code == 1 and report['verdict'] == 'inconsistent' and not node_report['consistent']
     assert report['summary']['inconsistent_scans'] > 0
     # the node said what replay says: the paper's figures and both stages' verdict

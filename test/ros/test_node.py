@@ -44,7 +44,7 @@ from map_consistency_ros.ros.settings import parameter_file
 REPO = FilePath(__file__).resolve().parents[2]
 SCANS = 80  # the first 80 Intel scans form a consistent map at the logged poses
 # The node's outputs per keyframe: every keyframe is a viewpoint (the folding of keyframes
-# into viewpoints is tested in core/test_monitor.py and by replay against check).
+# into viewpoints is tested in core/live/test_monitor.py and by replay against check).
 EVERY_KEYFRAME = ('-p', 'viewpoint_spacing:=0.0', '-p', 'viewpoint_turn:=0.0')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
