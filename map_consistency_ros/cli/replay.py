@@ -131,7 +131,7 @@ class ReplayStats:
 
 
 class Replay:
-    """Feeds one bag's records through the node's feed (core/feed.py), in log order."""
+    """Feeds one bag's records through the node's feed (core/live/_feed.py), in log order."""
 
     def __init__(self, bag: BagReader, feed: MonitorFeed) -> None:
         self.bag = bag
@@ -299,7 +299,7 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
                    'realtime_scans_per_second': replay.stats.realtime_rate,
                    'warnings': replay.stats.warnings},
         'keyframe_stamps': snapshot.stamps,
-        # the estimate the verdict judged, as the node's ~/report names it (feed.py)
+        # the estimate the verdict judged, as the node's ~/report names it (core/live/_feed.py)
         'judged_stamp': snapshot.estimate_stamp,
         'judged_keyframes': snapshot.keyframe_count,
         'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),

@@ -115,7 +115,7 @@ def test_path_read_from_its_bytes_as_rclpy_deserializes_it(intel, count, frame, 
     fast = messages.path_from_cdr(data)
     slow = messages.to_record(messages.PATH_TYPE, deserialize_message(data, Path))
     assert fast.frame_id == slow.frame_id == frame
-    # the header's stamp names the estimate (feed.py): both readers, to the nanosecond
+    # the header's stamp names the estimate (core/live/_feed.py): both readers, to the nanosecond
     assert fast.stamp == slow.stamp == pytest.approx(log.timestamps[0], abs=1e-9)
     np.testing.assert_array_equal(fast.stamps, slow.stamps)
     np.testing.assert_array_equal(fast.poses, slow.poses)  # NaN where NaN

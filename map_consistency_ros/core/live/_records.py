@@ -1,7 +1,7 @@
 """The input contract of the monitor: one record type per kind of input message.
 
 The node and bag replay convert their messages into these records (io/messages.py) and apply
-them through one feed (core/feed.py), so both see exactly the same input. Stamps are float
+them through one feed (core/live/_feed.py), so both see exactly the same input. Stamps are float
 seconds, poses (x, y, yaw).
 """
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """The second stage of the verdict: explain every failed pair as misalignment or change.
 
-The paper's test (consistency.py) asks whether the inconsistency distances of a pair exceed
+The paper's test (core/consistency) asks whether the inconsistency distances of a pair exceed
 sensor noise. On real maps they also do where the world changed between two visits (people,
 doors, chairs, no-return beams), which is no error of the map. This stage explains each failed
 pair that contributes to a flagged scan:
 
 - the submaps around its two scans (`block` consecutive scans each, widened by `margin`) are
-  registered robustly (registration.py): the correction of the later side onto the earlier one,
+  registered robustly (_registration.py): the correction of the later side onto the earlier one,
   with its covariance and the fraction of the surfaces that agree;
 - misaligned: the correction is determined, plausible (within `max_translation` /
   `max_rotation_deg`), statistically different from zero, moves the later scan's end points by
