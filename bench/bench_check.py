@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from bench_measure import shapely_measures
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.core.geometry import ScanSet, candidate_pairs
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 TREE = Path(__file__).resolve().parents[1]

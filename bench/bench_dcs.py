@@ -23,10 +23,9 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.dcs import SparseSystem, optimize
-from map_consistency_ros.core.posegraph import PoseGraph
-from map_consistency_ros.core.tuning import InconsistencyProfile, TuningSettings, tune_dcs
+from map_consistency_ros.core.backend import (InconsistencyProfile, PoseGraph, SparseSystem,
+                                              TuningSettings, optimize, tune_dcs)
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import sensor_model
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
@@ -35,8 +34,8 @@ INTEL = ROOT.parent / 'shared' / 'data' / 'intel'
 
 
 def _load_oracle():
-    """The tests' GTSAM formulation of the problem (test/core/test_dcs.py), so both agree."""
-    path = ROOT / 'test' / 'core' / 'test_dcs.py'
+    """The tests' GTSAM formulation (test/core/backend/test_dcs.py), so both agree."""
+    path = ROOT / 'test' / 'core' / 'backend' / 'test_dcs.py'
     spec = importlib.util.spec_from_file_location('dcs_oracle', path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

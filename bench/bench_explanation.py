@@ -13,34 +13,11 @@ Medians of --repeat runs after a warm-up, wall and process CPU seconds.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-import numpy as np
-
-from bench_measure import median_time  # this folder's helper: bench scripts run from here
+from bench_measure import median_time  # this folder's helpers: bench scripts run from here
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import explain
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.evaluation.suite import displace
-from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
-
-DATA = Path(__file__).resolve().parents[2] / 'shared' / 'data'
-
-
-def maps() -> list[tuple[str, ScanSet]]:
-    intel = read_carmen_log(DATA / 'intel' / 'intel.gfs.log')
-    model = sensor_model(intel)
-    turned = displace(intel.laser_poses, 455, intel.scan_count, np.radians(1.0), np.zeros(2))
-    fr101 = read_carmen_log(DATA / 'carmen_corrected_extra' / 'freiburg-101-corrected.log.gz')
-    return [
-        ('Intel corrected (910 scans)', ScanSet.from_ranges(intel.ranges, intel.laser_poses,
-                                                            model)),
-        ('Intel, 1 deg after scan 455', ScanSet.from_ranges(intel.ranges, turned, model)),
-        ('Intel demo map (290 scans)', ScanSet.from_ranges(intel.ranges[:290],
-                                                           intel.laser_poses[:290], model)),
-        ('Freiburg 101 (292 scans)', ScanSet.from_ranges(fr101.ranges, fr101.laser_poses,
-                                                         sensor_model(fr101))),
-    ]
+from map_consistency_ros.core.verdict import explain
+from report_identity import explanation_maps
 
 
 def main() -> None:
@@ -49,7 +26,7 @@ def main() -> None:
     args = parser.parse_args()
     print(f'{"map":<30} {"paper test [s]":>16} {"explanation [s]":>17} {"ratio":>7}  '
           'explained pairs')
-    for name, scans in maps():
+    for name, scans in explanation_maps():
         test, result = median_time(lambda: check_consistency(scans), args.repeat)
         second, assessment = median_time(lambda: explain(scans, result), args.repeat)
         print(f'{name:<30} {test.wall:7.3f} ({test.cpu:5.2f}) {second.wall:8.3f} '

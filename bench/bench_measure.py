@@ -21,9 +21,8 @@ import numpy as np
 import shapely
 
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.measure import pair_measures, pair_measures_naive
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
-from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.core.geometry import (ScanSet, SensorModel, candidate_pairs,
+                                               pair_measures, pair_measures_naive)
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 INTEL = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'intel' / 'intel.gfs.log'

@@ -22,12 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import (ConsistencyResult, check_consistency,
                                                   evaluate_pairs)
-from map_consistency_ros.core.measure import PairMeasures
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.geometry import PairMeasures, ScanSet, se2
+from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 DEFAULT_LOG = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'intel' / 'intel.gfs.log'

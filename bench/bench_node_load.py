@@ -122,8 +122,7 @@ def peak_rss_mib(pid: int) -> float:
 def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
     """Seconds of each Path update of the same stream through the feed without ROS (the
     reference: what the node adds is conversion, queueing, markers, publishing, sharing)."""
-    from map_consistency_ros.core.feed import MonitorFeed
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.live import KeyframeEstimate, MonitorFeed, Scan
     feed = MonitorFeed()
     seconds = []
     for k in range(len(stamps)):
@@ -142,8 +141,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
 
-    from map_consistency_ros.core import se2
-    from map_consistency_ros.core.viewpoints import viewpoint_rows
+    from map_consistency_ros.core.geometry import se2, viewpoint_rows
     from map_consistency_ros.io import messages
     from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
     from map_consistency_ros.ros.conversions import message_class

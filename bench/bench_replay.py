@@ -17,7 +17,7 @@ from pathlib import Path
 
 from map_consistency_ros.cli import replay
 from map_consistency_ros.cli.main import build_parser
-from map_consistency_ros.core.records import Scan
+from map_consistency_ros.core.live import Scan
 from map_consistency_ros.io.bags import BagReader, BagTopics
 
 DEFAULT_BAG = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'intel' / 'intel.orig.bag'

@@ -44,6 +44,24 @@ def rectangle_room_ranges(poses, beams=180, fov=3.141592653589793, width=8.0, he
     return ranges
 
 
+def write_flaser(path, ranges, poses, period=0.2, decimals=4):
+    """A CARMEN log of FLASER lines: `ranges` (N, K) at `poses` (N, 3), scans `period` s
+    apart, ranges with `decimals` decimals."""
+    lines = []
+    for index, (scan, pose) in enumerate(zip(ranges, poses)):
+        values = ' '.join(f'{r:.{decimals}f}' for r in scan)
+        pose_text = ' '.join(f'{v:.6f}' for v in pose)
+        lines.append(f'FLASER {scan.size} {values} {pose_text} {pose_text} '
+                     f'{index * period:.3f} host {index * period:.3f}\n')
+    path.write_text(''.join(lines))
+
+
+@pytest.fixture
+def flaser_log():
+    """`write(path, ranges, poses, period=0.2, decimals=4)`: a CARMEN log of FLASER lines."""
+    return write_flaser
+
+
 @pytest.fixture
 def room_log(tmp_path):
     """Write a CARMEN log of 40 scans in a rectangular room; returns (path, poses, ranges)."""
@@ -54,17 +72,53 @@ def room_log(tmp_path):
             t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
             poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
         ranges = rectangle_room_ranges(poses)
-        lines = []
-        for index, (pose, scan) in enumerate(zip(poses, ranges)):
-            values = ' '.join(f'{r:.4f}' for r in scan)
-            pose_text = ' '.join(f'{v:.6f}' for v in pose)
-            lines.append(f'FLASER {scan.size} {values} {pose_text} {pose_text} '
-                         f'{index * 0.2:.3f} host {index * 0.2:.3f}\n')
         path = tmp_path / name
-        path.write_text(''.join(lines))
+        write_flaser(path, ranges, poses)
         return path, poses, ranges
 
     return write
+
+
+@pytest.fixture
+def displaced_room_log(room_log):
+    """`write(name='displaced.log')`: one and a half laps of the room with the logged poses of
+    the second half 0.4 m off, as if SLAM had put them there; one misaligned region (the
+    second half revisits the first, so the second stage registers the displaced stretch
+    against what it revisits). Returns the log's path."""
+    import numpy as np
+
+    def write(name='displaced.log'):
+        t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
+        poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
+        path, _, _ = room_log(poses, name=name)
+        lines = []
+        for index, line in enumerate(path.read_text().splitlines()):
+            tokens = line.split()
+            if index >= 30:
+                for slot in (182, 185):
+                    tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
+            lines.append(' '.join(tokens))
+        path.write_text('\n'.join(lines) + '\n')
+        return path
+
+    return write
+
+
+def stop_process(process, timeout=10):
+    """Terminate `process`, kill it when it has not ended within `timeout` seconds."""
+    import subprocess
+    process.terminate()
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=timeout)
+
+
+@pytest.fixture
+def process_stopper():
+    """`stop(process, timeout=10)`: terminate a process, kill it when it does not end."""
+    return stop_process
 
 
 @pytest.fixture(scope='session')
@@ -84,7 +138,7 @@ def slam_toolbox_stream(shared_data):
 
     import numpy as np
 
-    from map_consistency_ros.core import se2
+    from map_consistency_ros.core.geometry import se2
     from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
     scans, pivot, loop, every = 120, 40, 85, 10

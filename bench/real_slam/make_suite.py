@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import read_carmen_log
 from map_consistency_ros.io.datasets import RawBag, match_scans, read_raw_bag, read_relations
 

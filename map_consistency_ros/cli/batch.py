@@ -42,10 +42,9 @@ import numpy as np
 from map_consistency_ros.cli import check, options, pool, replay, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import ExplanationSettings
-from map_consistency_ros.core.feed import FeedSettings
-from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings
 from map_consistency_ros.core.parameters import specs
+from map_consistency_ros.core.verdict import ExplanationSettings
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.parameter_file import read_parameter_file
 

@@ -26,11 +26,9 @@ import numpy as np
 
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import Assessment, check_map
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import Assessment, check_map
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
 

@@ -34,9 +34,8 @@ import numpy as np
 
 from map_consistency_ros.cli import options
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.posegraph import information_upper
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.backend import information_upper
+from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.io import carmen, g2o
 from map_consistency_ros.io.bags import STORAGES, BagTopics, BagWriter
 from map_consistency_ros.io.errors import InputError

@@ -23,11 +23,10 @@ import numpy as np
 
 from map_consistency_ros.cli import main as cli_main
 from map_consistency_ros.cli import check, replay, report
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.dcs import optimize
-from map_consistency_ros.core.explanation import explain
-from map_consistency_ros.core.monitor import ConsistencyMonitor
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.backend import PoseGraph, optimize
+from map_consistency_ros.core.geometry import se2
+from map_consistency_ros.core.live import ConsistencyMonitor
+from map_consistency_ros.core.verdict import explain
 
 DEMO_BAG = 'intel_demo.mcap'
 # the wrong loop closure: (from keyframe, to keyframe), error (metres, metres, degrees)

@@ -34,10 +34,10 @@ import numpy as np
 from map_consistency_ros.cli import plots, report
 from map_consistency_ros.cli.plots import save_figure
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core.baseline import BaselineParameters, map_statistic
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  check_consistency, map_statistic)
+from map_consistency_ros.core.verdict import ExplanationSettings, explain
 from map_consistency_ros.evaluation import density, metrics, real_slam, runner, whole_logs
-from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
-from map_consistency_ros.core.explanation import ExplanationSettings, explain
 from map_consistency_ros.evaluation.suite import (CORRECTED_LOGS, SuiteMap, SuiteParameters,
                                                   build_suite)
 from map_consistency_ros.io.errors import InputError

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import ExplanationSettings
 from map_consistency_ros.core.parameters import ParameterSpec, settings_from_values, specs
+from map_consistency_ros.core.verdict import ExplanationSettings
 
 
 def option_name(name: str) -> str:

@@ -10,12 +10,10 @@ import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first
 import numpy as np  # noqa: E402
 from matplotlib.collections import PathCollection  # noqa: E402
 
-from map_consistency_ros.core import statistics  # noqa: E402
-from map_consistency_ros.core.consistency import ConsistencyResult  # noqa: E402
-from map_consistency_ros.core.explanation import (  # noqa: E402
+from map_consistency_ros.core.consistency import ConsistencyResult, statistics  # noqa: E402
+from map_consistency_ros.core.geometry import ScanSet, point_distances  # noqa: E402
+from map_consistency_ros.core.verdict import (  # noqa: E402
     Assessment, misaligned_endpoints)
-from map_consistency_ros.core.measure import point_distances  # noqa: E402
-from map_consistency_ros.core.scan_geometry import ScanSet  # noqa: E402
 
 # An end point counts as visibly inconsistent this many pair scales inside the other polygon.
 _HIGHLIGHT_SCALES = 3.0

@@ -42,12 +42,12 @@ import numpy as np
 from map_consistency_ros.cli import check, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
-from map_consistency_ros.core.feed import FeedSettings, MonitorFeed
-from map_consistency_ros.core.monitor import ConsistencyMonitor, MonitorSettings, MonitorSnapshot
+from map_consistency_ros.core.geometry import ScanSet
+from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
+                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
+                                           MonitorSnapshot, PoseSample, Scan)
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
-from map_consistency_ros.core.records import GraphSnapshot, KeyframeEstimate, PoseSample, Scan
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import PATH_TYPE, POSE_SOURCE_TYPES, time_message
@@ -131,7 +131,7 @@ class ReplayStats:
 
 
 class Replay:
-    """Feeds one bag's records through the node's feed (core/feed.py), in log order."""
+    """Feeds one bag's records through the node's feed (core/live/_feed.py), in log order."""
 
     def __init__(self, bag: BagReader, feed: MonitorFeed) -> None:
         self.bag = bag
@@ -299,7 +299,7 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
                    'realtime_scans_per_second': replay.stats.realtime_rate,
                    'warnings': replay.stats.warnings},
         'keyframe_stamps': snapshot.stamps,
-        # the estimate the verdict judged, as the node's ~/report names it (feed.py)
+        # the estimate the verdict judged, as the node's ~/report names it (core/live/_feed.py)
         'judged_stamp': snapshot.estimate_stamp,
         'judged_keyframes': snapshot.keyframe_count,
         'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),

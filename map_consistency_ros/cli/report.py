@@ -7,9 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.explanation import Assessment
-from map_consistency_ros.core.reporting import (assessment_report, result_report, scan_names,
-                                                to_json)
+from map_consistency_ros.core.verdict import (Assessment, assessment_report, result_report,
+                                              scan_names, to_json)
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
            'format_summary', 'region_text']

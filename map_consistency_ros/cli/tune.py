@@ -26,12 +26,12 @@ from pathlib import Path
 
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
+from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult, TuningSettings,
+                                              tune_dcs)
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import Assessment, explain
+from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.core.parameters import settings_from_values
-from map_consistency_ros.core.scan_geometry import SensorModel
-from map_consistency_ros.core.tuning import (InconsistencyProfile, TuningResult, TuningSettings,
-                                             tune_dcs)
+from map_consistency_ros.core.verdict import Assessment, explain
 from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o

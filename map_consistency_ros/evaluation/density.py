@@ -5,7 +5,7 @@ Two parts:
 - `native_log`: Intel rebuilt at the laser's native rate. The corrected log (`intel.gfs.log`)
   keeps 910 of the 13,631 raw scans of `intel.orig.bag` (~0.67 m apart). Every raw scan is
   placed from its nearest corrected keyframe (in time) by the raw odometry between the two
-  stamps, then registered (core.registration, point-to-line ICP) onto the surfaces of the
+  stamps, then registered (core.verdict, point-to-line ICP) onto the surfaces of the
   corrected keyframes around it; keyframes keep their corrected poses. Written as a gzip CARMEN
   log of FLASER records with the raw scans' stamps.
 - The suite: each log at every n-th scan (and Intel at its keyframes), the map itself and
@@ -34,12 +34,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.registration import (RegistrationSettings, register_submaps,
-                                                   surface_points)
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import RegistrationSettings, register_submaps, surface_points
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
 from map_consistency_ros.io.datasets import RawBag, match_scans
 
@@ -269,9 +266,9 @@ def load(case: Case, data: Path, checkout: Path):
 
 
 def run_case(case: Case, data: Path, checkout: Path) -> dict:
-    """The verdict of `check` (its viewpoints, core.explanation.check_map at default settings)
+    """The verdict of `check` (its viewpoints, core.verdict.check_map at default settings)
     on the case, with its runtime, this process's peak memory and the truth."""
-    from map_consistency_ros.core.explanation import check_map
+    from map_consistency_ros.core.verdict import check_map
     scans, true_poses, moved = load(case, data, checkout)
     started = time.perf_counter()
     assessment = check_map(scans)

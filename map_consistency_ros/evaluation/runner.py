@@ -17,15 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.cli import pool
-from map_consistency_ros.core.baseline import (BaselineParameters, PairLikelihoods, map_statistic,
-                                               pair_log_likelihoods)
-from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
-                                                  evaluate_pairs, local_pairs, local_scales)
-from map_consistency_ros.core.explanation import (ExplanationSettings, RegistrationCache,
-                                                  explain)
-from map_consistency_ros.core.measure import PairMeasures, pair_measures
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  PairLikelihoods, check_consistency,
+                                                  evaluate_pairs, local_pairs, local_scales,
+                                                  map_statistic, pair_log_likelihoods)
+from map_consistency_ros.core.geometry import PairMeasures, ScanSet, candidate_pairs, pair_measures
+from map_consistency_ros.core.verdict import ExplanationSettings, RegistrationCache, explain
 from map_consistency_ros.evaluation import metrics
 from map_consistency_ros.evaluation.suite import SuiteMap, SuiteParameters, keyframes
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model

@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import se2, viewpoint_rows
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log
 
 # dataset name -> corrected log, relative to the shared data folder

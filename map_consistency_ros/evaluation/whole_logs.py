@@ -22,13 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic,
-                                               pair_log_likelihoods)
-from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
-from map_consistency_ros.core.explanation import Assessment, ExplanationSettings, explain
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  check_consistency, map_statistic,
+                                                  pair_log_likelihoods)
+from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -112,7 +110,7 @@ def displaced_maps(dataset: str, data: Path, seams: int, seed: int) -> list[Whol
 
 def false_loop_maps(dataset: str, data: Path, seed: int) -> list[WholeLogMap]:
     """Least-squares maps of the built graph of `dataset` with FALSE_LOOPS false loop closures."""
-    from map_consistency_ros.core.dcs import optimize
+    from map_consistency_ros.core.backend import optimize
     from map_consistency_ros.io.datasets import (BuildSettings, build_graph, read_raw_bag,
                                                  read_relations)
     relations, bag_path, stride = BUILT_GRAPHS[dataset]

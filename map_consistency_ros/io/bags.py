@@ -1,8 +1,8 @@
 """ROS bags as numpy, through rosbags (no ROS install): ROS 1 `.bag`, rosbag2 sqlite3 and mcap.
 
 Reading: `BagReader` checks that the bag has the node's topics with the node's message types
-and yields the core input records (core/records.py, converted by io/messages.py exactly as the
-node converts its messages) in log-time order, or `BadMessage` for unusable content.
+and yields the core input records (core/live/_records.py, converted by io/messages.py exactly as
+the node converts its messages) in log-time order, or `BadMessage` for unusable content.
 
 Writing: `BagWriter` writes rosbag2 (mcap or sqlite3) with the ROS 2 Jazzy message
 definitions. Stamps are float seconds at the API. Every bad bag becomes an InputError that
@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.records import Record
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.geometry import SensorModel, se2
+from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE,
                                              PATH_TYPE, POSE_COVARIANCE_TYPE, POSE_TYPES,

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
 
 DEFAULT_FOV = math.pi

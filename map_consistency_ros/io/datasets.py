@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.posegraph import PoseGraph
+from map_consistency_ros.core.backend import PoseGraph
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import CarmenLog, LaserAngles, read_carmen_log, sensor_model
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph

@@ -18,9 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.posegraph import (PoseGraph, information_from_upper,
-                                                information_upper)
+from map_consistency_ros.core.backend import PoseGraph, information_from_upper, information_upper
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, open_text, parse_floats,
                                            parse_robotlaser)
 from map_consistency_ros.io.errors import InputError

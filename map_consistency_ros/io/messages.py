@@ -17,11 +17,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.posegraph import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Record, Scan)
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.backend import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
+from map_consistency_ros.core.geometry import SensorModel, se2
+from map_consistency_ros.core.live import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                           PoseSample, Record, Scan)
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 PATH_TYPE = 'nav_msgs/msg/Path'

@@ -17,10 +17,9 @@ from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.arrays import with_rows
-from map_consistency_ros.core.explanation import Assessment
-from map_consistency_ros.core.monitor import MonitorSnapshot
+from map_consistency_ros.core.geometry import se2, with_rows
+from map_consistency_ros.core.live import MonitorSnapshot
+from map_consistency_ros.core.verdict import Assessment
 
 KEYFRAME_NAMESPACE = 'keyframes'
 POINTS_NAMESPACE = 'misaligned_points'

@@ -40,20 +40,18 @@ from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from map_consistency_ros.core.backend import TuningSettings, tune_dcs, tuning_problem
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import (Assessment, ExplanationSettings,
-                                                  RegistrationCache, explain,
-                                                  misaligned_endpoints)
-from map_consistency_ros.core.reporting import assessment_report, plain, to_json
-from map_consistency_ros.core.scan_geometry import ScanSet
-from map_consistency_ros.core.feed import FeedSettings, MonitorFeed, warm_up
-from map_consistency_ros.core.monitor import MonitorSettings, MonitorSnapshot, sensor_poses
+from map_consistency_ros.core.geometry import ScanSet
+from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
+                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
+                                           MonitorSnapshot, PoseSample, Scan, sensor_poses,
+                                           warm_up)
 from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
                                                  unknown_names)
-from map_consistency_ros.core.posegraph import tuning_problem
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Scan)
-from map_consistency_ros.core.tuning import TuningSettings, tune_dcs
+from map_consistency_ros.core.verdict import (Assessment, ExplanationSettings, RegistrationCache,
+                                              assessment_report, explain, misaligned_endpoints,
+                                              plain, to_json)
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, not_monitoring

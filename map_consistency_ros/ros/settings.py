@@ -13,12 +13,11 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.explanation import ExplanationSettings
-from map_consistency_ros.core.feed import FeedSettings
-from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings
 from map_consistency_ros.core.parameters import markdown_table, parameter, specs, yaml_document
-from map_consistency_ros.core.tuning import TuningSettings
+from map_consistency_ros.core.verdict import ExplanationSettings
 
 RELIABILITIES = ('best_effort', 'reliable')
 EXECUTORS = ('events', 'multi_threaded')

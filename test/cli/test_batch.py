@@ -13,23 +13,6 @@ from map_consistency_ros.cli.main import main
 DEMO_BAG = 'intel_demo.mcap'
 
 
-def _displaced_room(room_log):
-    """One and a half laps of the room with the second half logged 0.4 m off (as in
-    test_check): one misaligned region."""
-    t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
-    poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
-    path, _, _ = room_log(poses, name='displaced.log')
-    lines = []
-    for index, line in enumerate(path.read_text().splitlines()):
-        tokens = line.split()
-        if index >= 30:
-            for slot in (182, 185):
-                tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
-        lines.append(' '.join(tokens))
-    path.write_text('\n'.join(lines) + '\n')
-    return path
-
-
 EVERY_SCAN = ('--viewpoint-spacing', '0')
 
 
@@ -37,9 +20,10 @@ def _first_line(capsys) -> str:
     return capsys.readouterr().out.splitlines()[0]
 
 
-def test_each_input_is_judged_as_check_and_replay_judge_it(room_log, tmp_path, capsys):
+def test_each_input_is_judged_as_check_and_replay_judge_it(room_log, displaced_room_log,
+                                                           tmp_path, capsys):
     consistent, _, _ = room_log()
-    displaced = _displaced_room(room_log)
+    displaced = displaced_room_log()
     bag = Path(batch.__file__).parents[1] / 'data' / DEMO_BAG
     corrupt = tmp_path / 'corrupt.log'
     corrupt.write_text('FLASER 3 1.0 2.0\n')
@@ -94,10 +78,12 @@ def test_folders_and_patterns_are_searched_and_each_input_listed_once(room_log, 
     assert found == [(str(first), batch.CARMEN), (str(bag_folder), batch.ROS2_BAG)]
 
 
-def test_an_unexpected_error_is_an_internal_error_and_the_batch_goes_on(room_log, tmp_path,
-                                                                          monkeypatch, capsys):
+def test_an_unexpected_error_is_an_internal_error_and_the_batch_goes_on(room_log,
+                                                                          displaced_room_log,
+                                                                          tmp_path, monkeypatch,
+                                                                          capsys):
     consistent, _, _ = room_log()
-    displaced = _displaced_room(room_log)
+    displaced = displaced_room_log()
     judge = check.judge
 
     def failing(args):
@@ -176,7 +162,7 @@ def test_no_map_at_all_is_bad_input(tmp_path, capsys):
 def _room_graph(room_log, path):
     """The room of `room_log` as a g2o graph: a vertex per scan at its logged pose, odometry
     edges, and each scan as a ROBOTLASER1 line (180 beams over 180 degrees, laser at the robot)."""
-    from map_consistency_ros.core import se2
+    from map_consistency_ros.core.geometry import se2
     _, poses, ranges = room_log()
     lines = []
     for index, (pose, scan) in enumerate(zip(poses, ranges)):

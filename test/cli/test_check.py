@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli.main import main
-from map_consistency_ros.core.viewpoints import viewpoint_rows
+from map_consistency_ros.core.geometry import viewpoint_rows
 
 
 def test_consistent_room_exits_0_and_writes_outputs(strict_json, room_log, tmp_path, capsys):
@@ -35,22 +35,11 @@ def test_consistent_room_exits_0_and_writes_outputs(strict_json, room_log, tmp_p
     assert data['summary']['overlapping_pairs'] == len(rows)
 
 
-def test_displaced_room_exits_1_and_names_scans(strict_json, room_log, tmp_path, capsys):
-    # One and a half laps: the displaced second half revisits the first (the second stage
-    # needs independent registrations of the displaced stretch against what it revisits).
-    t = np.linspace(0, 3 * np.pi, 60, endpoint=False)
-    poses = np.stack([4 + 2 * np.cos(t), 2.5 + 1.2 * np.sin(t), t + np.pi / 2], axis=1)
-    path, _, _ = room_log(poses)
-    # Rewrite the logged poses of the second half as if SLAM had put them 0.4 m off.
-    lines = path.read_text().splitlines()
-    shifted = []
-    for index, line in enumerate(lines):
-        tokens = line.split()
-        if index >= 30:
-            for slot in (182, 185):
-                tokens[slot] = f'{float(tokens[slot]) + 0.4:.6f}'
-        shifted.append(' '.join(tokens))
-    path.write_text('\n'.join(shifted) + '\n')
+def test_displaced_room_exits_1_and_names_scans(strict_json, displaced_room_log, tmp_path,
+                                                capsys):
+    # One and a half laps, the second half logged 0.4 m off: it revisits the first (the second
+    # stage needs independent registrations of the displaced stretch against what it revisits).
+    path = displaced_room_log(name='room.log')
     explain, report = tmp_path / 'pairs.png', tmp_path / 'r.json'
     # The room's lap is 10 m, shorter than the local window of 40 viewpoints 0.4 m apart:
     # every scan is a viewpoint here, as the keyframes of a log of a large building are.

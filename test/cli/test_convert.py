@@ -6,7 +6,7 @@ import pytest
 
 from map_consistency_ros.cli.main import main
 from map_consistency_ros.io import carmen
-from map_consistency_ros.core.records import Constraints, KeyframeEstimate, Scan
+from map_consistency_ros.core.live import Constraints, KeyframeEstimate, Scan
 from map_consistency_ros.io.bags import BagReader
 
 SCANS = 40
@@ -154,8 +154,8 @@ LASER_OFFSET = np.array([0.1, -0.05, 0.02])
 @pytest.fixture(scope='module')
 def graph_bag(intel_log, tmp_path_factory):
     """A g2o graph of the first Intel scans (laser offset, two loop closures), converted."""
-    from map_consistency_ros.core import se2
-    from map_consistency_ros.core.posegraph import PoseGraph
+    from map_consistency_ros.core.backend import PoseGraph
+    from map_consistency_ros.core.geometry import se2
     from map_consistency_ros.io import g2o
     log = first_records(carmen.read_carmen_log(intel_log), GRAPH_SCANS)
     offsets = np.broadcast_to(LASER_OFFSET, (GRAPH_SCANS, 3))
@@ -207,7 +207,7 @@ def test_graph_constraints_after_each_loop_closure(graph_bag):
 
 def test_graph_replays_like_the_batch_test(strict_json, graph_bag):
     from map_consistency_ros.core.consistency import check_consistency
-    from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+    from map_consistency_ros.core.geometry import ScanSet, SensorModel
     folder, log, _ = graph_bag
     assert main(['replay', str(folder / 'bag'), '--quiet', '--report',
                  str(folder / 'r.json')]) in (0, 1)

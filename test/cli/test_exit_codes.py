@@ -64,7 +64,7 @@ def test_every_subcommand_maps_an_internal_error_to_3(command, module, target, m
 def test_the_console_entry_point_exits_3_on_an_internal_error(log, tmp_path):
     # A real process: `check` with its registration made to fail, through the module's entry.
     script = ('import sys\n'
-              'from map_consistency_ros.core import explanation\n'
+              'from map_consistency_ros.core.verdict import explanation\n'
               'def broken(*args, **kwargs):\n'
               '    raise RuntimeError("registration broke")\n'
               'explanation.register_submaps = broken\n'

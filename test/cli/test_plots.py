@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli import plots
-from map_consistency_ros.core.explanation import ChangedPlace, check_map
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.geometry import ScanSet, SensorModel
+from map_consistency_ros.core.verdict import ChangedPlace, check_map
 
 
 def _room_figure(scale: float, points: int):

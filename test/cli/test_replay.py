@@ -181,7 +181,7 @@ def test_bad_bags_exit_2(shared_data, tmp_path, capsys, round_trip):
 
 
 def test_no_matching_poses(tmp_path, capsys):
-    from map_consistency_ros.core.scan_geometry import SensorModel
+    from map_consistency_ros.core.geometry import SensorModel
     model = SensorModel(angle_min=-1.5, angle_increment=0.5, max_range=10.0)
     with BagWriter(tmp_path / 'offset') as writer:
         for stamp in (1.0, 2.0, 3.0):
@@ -288,8 +288,8 @@ def record_raw(path, received, types):
 @pytest.fixture(scope='module')
 def wrong_loop_closure(round_trip):
     """The round-trip run, then a last trajectory that bends its final third by 0.15 rad."""
-    from map_consistency_ros.core import se2
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.geometry import se2
+    from map_consistency_ros.core.live import KeyframeEstimate, Scan
     folder = round_trip[0]
     with BagReader([folder / 'bag']) as bag:
         records = [record for _, record in bag.records()]
@@ -311,7 +311,8 @@ def wrong_loop_closure(round_trip):
 
 
 def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop_closure,
-                                                         ros_domain, tmp_path):
+                                                         ros_domain, tmp_path,
+                                                         process_stopper):
     """The node fed by --publish, and replay of a recording of its inputs, agree on the map
     both judged: the node's report whose judged_stamp and judged_keyframes are replay's (not
     the newest report after a quiet spell, which on a busy machine may judge an older
@@ -371,12 +372,7 @@ def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop
     finally:
         if listener is not None:
             listener.close()
-        node.terminate()
-        try:
-            node.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            node.kill()
-            node.wait(timeout=10)
+        process_stopper(node)
     assert code == 1 and report['verdict'] == 'inconsistent' and not node_report['consistent']
     assert report['summary']['inconsistent_scans'] > 0
     # the node said what replay says: the paper's figures and both stages' verdict
@@ -410,7 +406,7 @@ def test_bundled_demo_bag(shared_data):
     from importlib import resources
 
     from map_consistency_ros.io import carmen
-    from map_consistency_ros.core.records import KeyframeEstimate, Scan
+    from map_consistency_ros.core.live import KeyframeEstimate, Scan
     demo = resources.files('map_consistency_ros') / 'data' / 'intel_demo.mcap'
     log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     with BagReader([demo]) as bag:

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.cli.main import main
-from map_consistency_ros.core import reporting
-from map_consistency_ros.core.reporting import to_json
+from map_consistency_ros.core.verdict import reporting, to_json
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 
@@ -29,23 +28,13 @@ def test_a_non_finite_number_that_slips_past_plain_is_refused(monkeypatch):
         reporting.to_json({'x': math.nan})
 
 
-def _write_flaser(path, ranges, poses):
-    lines = []
-    for index, (scan, pose) in enumerate(zip(ranges, poses)):
-        values = ' '.join(f'{r:.3f}' for r in scan)
-        place = ' '.join(f'{v:.6f}' for v in pose)
-        lines.append(f'FLASER {scan.size} {values} {place} {place} {index * 0.1:.3f} host '
-                     f'{index * 0.1:.3f}\n')
-    path.write_text(''.join(lines))
-
-
 def test_a_region_beyond_local_registration_is_reported_with_null_corrections(
-        shared_data, tmp_path, strict_json):
+        shared_data, tmp_path, strict_json, flaser_log):
     # The second half of the loop shifted by 2 m: further than registration reaches.
     log = carmen.read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
     poses = displace(log.laser_poses[:SCANS], 150, SCANS, 0.0, np.array([2.0, 0.0]))
     path = tmp_path / 'shifted.log'
-    _write_flaser(path, log.ranges[:SCANS], poses)
+    flaser_log(path, log.ranges[:SCANS], poses, period=0.1, decimals=3)
     out = tmp_path / 'report.json'
     assert main(['check', str(path), '--max-range', '8', '--quiet', '--report', str(out)]) == 1
     text = out.read_text()

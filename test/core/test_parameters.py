@@ -4,12 +4,11 @@ import math
 import pytest
 import yaml
 
+from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.feed import FeedSettings
-from map_consistency_ros.core.monitor import MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings
 from map_consistency_ros.core.parameters import (closest_name, settings_from_values, specs,
                                                  unknown_names, yaml_document)
-from map_consistency_ros.core.tuning import TuningSettings
 
 GROUPS = (('test', ConsistencyParameters), ('monitor', MonitorSettings),
           ('tuning', TuningSettings), ('feed', FeedSettings))

@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.scan_geometry import ScanSet, SensorModel
+from map_consistency_ros.core.geometry import ScanSet, SensorModel, se2
 from map_consistency_ros.evaluation import density
 from map_consistency_ros.io.carmen import CarmenLog, LaserAngles, read_carmen_log
 from map_consistency_ros.io.datasets import RawBag

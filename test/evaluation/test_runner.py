@@ -4,11 +4,10 @@ import itertools
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.baseline import (BaselineParameters, map_statistic,
-                                               pair_log_likelihoods)
-from map_consistency_ros.core.consistency import (ConsistencyParameters, check_consistency,
-                                                  evaluate_pairs, local_scales)
-from map_consistency_ros.core.spatial_index import candidate_pairs
+from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
+                                                  check_consistency, evaluate_pairs, local_scales,
+                                                  map_statistic, pair_log_likelihoods)
+from map_consistency_ros.core.geometry import candidate_pairs
 from map_consistency_ros.evaluation import metrics, runner
 from map_consistency_ros.evaluation.suite import SuiteParameters, build_suite
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.evaluation.suite import (BREAKS, CORRECTED_LOGS, SuiteParameters,
                                                   build_suite, displace, keyframes)
 from map_consistency_ros.io.carmen import read_carmen_log

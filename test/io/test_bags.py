@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.feed import MonitorFeed
-from map_consistency_ros.core.records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                              PoseSample, Scan)
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.geometry import SensorModel, se2
+from map_consistency_ros.core.live import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                           MonitorFeed, PoseSample, Scan)
 from map_consistency_ros.io import bags, messages
 from map_consistency_ros.io.bags import BagReader, BagTopics, BagWriter
 from map_consistency_ros.io.errors import InputError

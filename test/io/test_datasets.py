@@ -4,7 +4,7 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import read_carmen_log
 from map_consistency_ros.io.datasets import (BuildSettings, build_dataset, build_graph,
                                              match_scans, read_raw_bag, read_relations)

@@ -2,13 +2,13 @@
 (test_pose_sources.py, test_slam_toolbox_source.py)."""
 from __future__ import annotations
 
-import json
 import os
 import random
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path as FilePath
 
@@ -30,20 +30,13 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 SETTLE_SECONDS = 1.0
 
 
-def _strict(text: str):
-    """A report parsed as strictly as its readers (jq, JavaScript, Go) do: no NaN, no
-    Infinity."""
-    def reject(name):
-        raise ValueError(f'{name} in a report is not JSON')
-    return json.loads(text, parse_constant=reject)
-
-
 @dataclass
 class NodeUnderTest:
     """The node's process and a probe node that publishes its inputs and keeps its reports."""
 
     process: subprocess.Popen
     probe: Node
+    parse: Callable[[str], dict]  # reports are parsed as strictly as their readers do
     reports: list[dict] = field(default_factory=list)
     publishers: list = field(default_factory=list)
 
@@ -74,7 +67,7 @@ class NodeUnderTest:
         fails, naming the maps the node judged, when it never judged that one within `timeout`
         seconds."""
         code = main(['replay', str(bag), '--quiet', '--report', str(out)])
-        report = _strict(out.read_text())
+        report = self.parse(out.read_text())
         judged = (report['judged_stamp'], report['judged_keyframes'])
         assert judged[0] is not None, 'replay judged no estimate'
 
@@ -96,7 +89,7 @@ class NodeUnderTest:
 
 
 @pytest.fixture
-def node_under_test(tmp_path, monkeypatch):
+def node_under_test(tmp_path, monkeypatch, strict_json, process_stopper):
     """`start(*ros_args)`: the node in its own process (random ROS_DOMAIN_ID, localhost only)
     with `--ros-args ros_args`, and the probe; both stopped after the test."""
     monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 200)))
@@ -113,9 +106,9 @@ def node_under_test(tmp_path, monkeypatch):
         processes.append(process)  # stopped below even if the probe never starts
         context = Context()
         rclpy.init(context=context)
-        node = NodeUnderTest(process, Node('probe', context=context))
+        node = NodeUnderTest(process, Node('probe', context=context), strict_json)
         node.probe.create_subscription(String, '/map_consistency/report',
-                                       lambda m: node.reports.append(_strict(m.data)),
+                                       lambda m: node.reports.append(node.parse(m.data)),
                                        LATCHED)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node.probe)
@@ -133,12 +126,7 @@ def node_under_test(tmp_path, monkeypatch):
             spinner.join(timeout=5)
     finally:
         for process in processes:
-            process.terminate()
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=10)
+            process_stopper(process)
 
 
 def assert_node_agrees(node_report: dict, report: dict, code: int) -> None:

@@ -12,9 +12,9 @@ from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension
 from visualization_msgs.msg import MarkerArray, UVCoordinate
 
-from map_consistency_ros.core.scan_geometry import SensorModel
+from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 
@@ -115,7 +115,7 @@ def test_path_read_from_its_bytes_as_rclpy_deserializes_it(intel, count, frame, 
     fast = messages.path_from_cdr(data)
     slow = messages.to_record(messages.PATH_TYPE, deserialize_message(data, Path))
     assert fast.frame_id == slow.frame_id == frame
-    # the header's stamp names the estimate (feed.py): both readers, to the nanosecond
+    # the header's stamp names the estimate (core/live/_feed.py): both readers, to the nanosecond
     assert fast.stamp == slow.stamp == pytest.approx(log.timestamps[0], abs=1e-9)
     np.testing.assert_array_equal(fast.stamps, slow.stamps)
     np.testing.assert_array_equal(fast.poses, slow.poses)  # NaN where NaN

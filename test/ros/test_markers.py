@@ -9,9 +9,9 @@ import pytest
 from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker
 
-from map_consistency_ros.core import se2
-from map_consistency_ros.core.explanation import explain, misaligned_endpoints
-from map_consistency_ros.core.monitor import ConsistencyMonitor
+from map_consistency_ros.core.geometry import se2
+from map_consistency_ros.core.live import ConsistencyMonitor
+from map_consistency_ros.core.verdict import explain, misaligned_endpoints
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.ros.markers import (CHANGES_NAMESPACE, CONSISTENT, INCONSISTENT,
                                              KEYFRAME_NAMESPACE, LEGEND_NAMESPACE, MarkerUpdates,

@@ -31,10 +31,9 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
-from map_consistency_ros.core import se2
 from map_consistency_ros.core.consistency import check_consistency
-from map_consistency_ros.core.explanation import explain
-from map_consistency_ros.core.scan_geometry import ScanSet
+from map_consistency_ros.core.geometry import ScanSet, se2
+from map_consistency_ros.core.verdict import explain
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
@@ -45,7 +44,7 @@ from map_consistency_ros.ros.settings import parameter_file
 REPO = FilePath(__file__).resolve().parents[2]
 SCANS = 80  # the first 80 Intel scans form a consistent map at the logged poses
 # The node's outputs per keyframe: every keyframe is a viewpoint (the folding of keyframes
-# into viewpoints is tested in core/test_monitor.py and by replay against check).
+# into viewpoints is tested in core/live/test_monitor.py and by replay against check).
 EVERY_KEYFRAME = ('-p', 'viewpoint_spacing:=0.0', '-p', 'viewpoint_turn:=0.0')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io import messages
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 from map_consistency_ros.ros.conversions import message_class
@@ -408,7 +408,7 @@ def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shar
 _COUNTING_THREADS = """
 import sys
 import numba
-from map_consistency_ros.core import monitor
+from map_consistency_ros.core.live import monitor
 from map_consistency_ros.ros import node
 real_measures, real_recompute = monitor.pair_measures, monitor.ConsistencyMonitor.recompute
 most, job = {}, []

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from map_consistency_ros.core import se2
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io import messages
 from map_consistency_ros.io.bags import BagTopics, BagWriter
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model

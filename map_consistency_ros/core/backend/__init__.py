@@ -1,0 +1,26 @@
+"""The back-end: the SE(2) pose graph (vertices, edges with information matrices, the
+constraint row format the node and bags carry; no files), sparse Levenberg-Marquardt with
+Dynamic Covariance Scaling, and the paper's Phi search (M(Phi) over a grid of sqrt(Phi), then
+golden-section refinement) that tunes DCS so the map becomes consistent. Built on geometry and
+the paper's test."""
+from map_consistency_ros.core.backend._dcs import (OptimizationResult, SparseSystem, dcs_scales,
+                                                   edge_residuals, optimize, robust_cost)
+from map_consistency_ros.core.backend._posegraph import (CONSTRAINT_FIELDS, CONSTRAINT_WIDTH,
+                                                         PoseGraph, check_constraint_rows,
+                                                         constraint_rows,
+                                                         information_from_upper,
+                                                         information_upper,
+                                                         split_constraint_rows, tuning_problem)
+from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyProfile,
+                                                      MeasuredPairs, TuningResult,
+                                                      TuningSettings, measure_moved, tune_dcs)
+
+__all__ = [
+    'PoseGraph', 'information_upper', 'information_from_upper', 'tuning_problem',
+    'CONSTRAINT_FIELDS', 'CONSTRAINT_WIDTH', 'constraint_rows', 'split_constraint_rows',
+    'check_constraint_rows',
+    'OptimizationResult', 'SparseSystem', 'optimize', 'dcs_scales', 'robust_cost',
+    'edge_residuals',
+    'TuningSettings', 'Evaluation', 'TuningResult', 'InconsistencyProfile', 'tune_dcs',
+    'MeasuredPairs', 'measure_moved',
+]

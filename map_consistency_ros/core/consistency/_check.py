@@ -1,0 +1,441 @@
+"""The statistical map-consistency test: from placed scans to per-scan and map verdicts.
+
+Pipeline (Mazuran et al., ICRA 2014): candidate pairs from the scans' extents, the pairwise
+measure M_ij / n_ij (measure.py), per-scan half-normal scales s_i from the incremental solution
+over temporally adjacent scans (eq. 10), the one-sided pairwise test on Psi_ij with
+s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8). The map is
+consistent when no scan fails. Notation as in statistics.py.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from functools import cached_property
+
+import numpy as np
+from numba import njit
+
+from map_consistency_ros.core.consistency import statistics
+from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, candidate_pairs,
+                                               extents_overlap, pair_measures,
+                                               pairs_point_distances)
+from map_consistency_ros.core.parameters import parameter
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class ConsistencyParameters:
+    """Confidence levels and robustifications of the test (defaults: see README, "Parameters")."""
+
+    # Originals' option names: --normal-err, --incr-normal-err, --binomial-prob, --binomial-err.
+    alpha: float = parameter(0.01, "pairwise test level (the paper's alpha)", '', (1e-9, 0.5))
+    local_alpha: float = parameter(
+        0.05, 'level of the local scale fit on the incremental solution', '', (1e-9, 0.5))
+    failure_probability: float = parameter(
+        0.015, 'probability that one pairwise test fails by chance', '', (1e-9, 0.5))
+    binomial_alpha: float = parameter(
+        0.01, "level of the cascaded (binomial) test per scan (the paper's alpha')", '',
+        (1e-9, 0.5))
+    viewpoint_spacing: float = parameter(
+        0.4, 'a scan becomes a viewpoint of the test this far from the previous one; the scans '
+        'in between are folded into it (standing still is one viewpoint; 0: every scan)', 'm',
+        (0.0, 100.0))
+    viewpoint_turn: float = parameter(
+        0.4, 'a scan turned this far from the previous viewpoint is a viewpoint too (0: every '
+        'scan)', 'rad', (0.0, 3.15))
+    local_window: int = parameter(
+        40, 'temporally adjacent viewpoints that fit a local scale, half on each side',
+        'viewpoints', (0, 1000))
+    min_points: int = parameter(
+        10, 'pairs with fewer inconsistent points (after trimming) are not tested', '',
+        (1, 100_000))
+    trim_largest: int = parameter(
+        10, 'largest distances of a pair dropped before its statistic', '', (0, 1000))
+    default_scale: float = parameter(
+        0.03, 'scale s_i of a scan whose neighbourhood gives no estimate', 'm', (1e-6, 10.0))
+    min_scale: float = parameter(0.0, 'floor on every local scale s_i', 'm', (0.0, 10.0))
+    flag_window: int = parameter(
+        0, 'keep a flag only with another flagged viewpoint within this many (0: off)',
+        'viewpoints', (0, 1000))
+
+    def __post_init__(self) -> None:
+        for name in ('alpha', 'local_alpha', 'failure_probability', 'binomial_alpha'):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise ValueError(f'{name} must be in (0, 1), got {value}')
+        for name in ('local_window', 'min_points', 'trim_largest', 'flag_window'):
+            if getattr(self, name) < 0:
+                raise ValueError(f'{name} must not be negative, got {getattr(self, name)}')
+        if self.min_points < 1:
+            raise ValueError('min_points must be at least 1')
+        if self.default_scale <= 0.0 or self.min_scale < 0.0:
+            raise ValueError('default_scale must be positive and min_scale not negative')
+
+    @property
+    def local_reach(self) -> int:
+        """Temporal neighbours (the pairs of the local scale fit) are at most this many scan
+        indices apart."""
+        return _half_window(self.local_window)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _half_window(window: int) -> int:
+    return max(window // 2, 1)
+
+
+@dataclass(frozen=True)
+class ConsistencyResult:
+    """Everything the test decided, per pair (P) and per scan (N)."""
+
+    pairs: np.ndarray  # (P, 2) scan indices i < j of pairs with overlapping extents
+    distance_sum: np.ndarray  # (P,) M_ij
+    point_count: np.ndarray  # (P,) n_ij
+    trimmed_sum: np.ndarray  # (P,) M_ij without the pair's trim_largest largest distances
+    trimmed_count: np.ndarray  # (P,) n_ij likewise
+    tested: np.ndarray  # (P,) bool: enough points for the pairwise test
+    statistic: np.ndarray  # (P,) Psi_ij of the tested pairs (robustified), NaN elsewhere
+    failed: np.ndarray  # (P,) bool
+    scales: np.ndarray  # (N,) s_i
+    overlap_counts: np.ndarray  # (N,) r_i, tested pairs per scan
+    failed_counts: np.ndarray  # (N,) failed pairs per scan
+    critical_counts: np.ndarray  # (N,) nu-hat of each scan
+    inconsistent: np.ndarray  # (N,) bool: the scan failed its cascaded test
+    parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
+
+    def own_scales(self) -> np.ndarray:
+        """(N,) s_i fitted on the map itself, from its measured pairs that join temporal
+        neighbours: how its scans agree with their neighbours. The same as `scales` unless the
+        test fitted those on an incremental solution."""
+        local = np.abs(self.pairs[:, 1] - self.pairs[:, 0]) <= self.parameters.local_reach
+        return _scales_from_sums(self.pairs[local], self.trimmed_sum[local],
+                                 self.trimmed_count[local], self.scan_count, self.parameters)
+
+    @classmethod
+    def untested(cls, parameters: ConsistencyParameters) -> ConsistencyResult:
+        """The result on no scans (where an incremental evaluation starts)."""
+        empty, counts = np.zeros(0), np.zeros(0, dtype=np.int64)
+        flags = np.zeros(0, dtype=bool)
+        return cls(pairs=np.zeros((0, 2), dtype=np.int64), distance_sum=empty,
+                   point_count=counts, trimmed_sum=empty, trimmed_count=counts, tested=flags,
+                   statistic=empty, failed=flags, scales=empty, overlap_counts=counts,
+                   failed_counts=counts, critical_counts=counts, inconsistent=flags,
+                   parameters=parameters)
+
+    @property
+    def consistent(self) -> bool:
+        return not bool(self.inconsistent.any())
+
+    @property
+    def scan_count(self) -> int:
+        return int(self.scales.size)
+
+    @property
+    def inconsistent_scans(self) -> np.ndarray:
+        return np.flatnonzero(self.inconsistent)
+
+    # cached, the three counts: the node reports them on every update, each a pass over
+    # every pair
+    @cached_property
+    def overlapping_pair_count(self) -> int:
+        return int(np.count_nonzero(self.point_count))
+
+    @cached_property
+    def tested_pair_count(self) -> int:
+        return int(np.count_nonzero(self.tested))
+
+    @cached_property
+    def failed_pair_count(self) -> int:
+        return int(np.count_nonzero(self.failed))
+
+    def summary(self) -> dict:
+        """The figures a report or a diagnostic shows."""
+        return {
+            'scans': self.scan_count,
+            'candidate_pairs': int(self.pairs.shape[0]),
+            'overlapping_pairs': self.overlapping_pair_count,
+            'tested_pairs': self.tested_pair_count,
+            'failed_pairs': self.failed_pair_count,
+            'inconsistent_scans': int(self.inconsistent.sum()),
+            'consistent': self.consistent,
+        }
+
+
+def robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndarray]:
+    """M_ij and n_ij without each pair's `trim` largest distances."""
+    if trim == 0:
+        return measures.distance_sum, measures.point_count
+    if measures.largest.shape[1] < trim:
+        raise ValueError(f'measures keep {measures.largest.shape[1]} largest distances per pair, '
+                         f'trimming needs {trim}')
+    trimmed_sum = measures.distance_sum - measures.largest[:, :trim].sum(axis=1)
+    trimmed_count = measures.point_count - np.minimum(measures.point_count, trim)
+    return np.maximum(trimmed_sum, 0.0), trimmed_count
+
+
+def local_scales(measures: PairMeasures, scan_count: int,
+                 parameters: ConsistencyParameters,
+                 robust: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """s_i of every scan (eq. 10): the largest scale bound over its measured local pairs.
+
+    `measures` are the pairs of temporally adjacent scans measured on the incremental solution.
+    Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
+    `robust`: see `robust_statistic`.
+    """
+    distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
+                           else robust)
+    return _scales_from_sums(measures.pairs, distance_sum, count, scan_count, parameters)
+
+
+def _scales_from_sums(pairs: np.ndarray, distance_sum: np.ndarray, count: np.ndarray,
+                      scan_count: int, parameters: ConsistencyParameters) -> np.ndarray:
+    """local_scales from the local pairs' trimmed (M_ij, n_ij)."""
+    usable = count >= parameters.min_points
+    bounds = np.zeros(len(pairs))
+    bounds[usable] = statistics.scale_bound(distance_sum[usable], count[usable],
+                                            parameters.local_alpha)
+    return _largest_bounds(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bounds, usable,
+                           scan_count, parameters.default_scale, parameters.min_scale)
+
+
+@njit(cache=True)
+def _largest_bounds(pairs: np.ndarray, bounds: np.ndarray, usable: np.ndarray, scan_count: int,
+                    default: float, floor: float) -> np.ndarray:
+    """Per scan, the largest bound of its usable pairs, `default` without any, at least
+    `floor`."""
+    scales = np.zeros(scan_count)
+    has_estimate = np.zeros(scan_count, dtype=np.bool_)
+    for index in range(pairs.shape[0]):
+        if usable[index]:
+            for scan in (pairs[index, 0], pairs[index, 1]):
+                scales[scan] = max(scales[scan], bounds[index])
+                has_estimate[scan] = True
+    for scan in range(scan_count):
+        scales[scan] = max(scales[scan] if has_estimate[scan] else default, floor)
+    return scales
+
+
+def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:
+    """Keep a flag only if another flagged scan lies within `window` indices."""
+    flagged = np.flatnonzero(inconsistent)
+    kept = np.zeros_like(inconsistent)
+    for index in flagged:
+        lo, hi = np.searchsorted(flagged, [index - window, index + window + 1])
+        kept[index] = hi - lo > 1
+    return kept
+
+
+def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
+                     parameters: ConsistencyParameters,
+                     robust: tuple[np.ndarray, np.ndarray] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Which pairs have enough points to test, and their trimmed Psi_ij (NaN where untested).
+
+    `robust` are the pairs' trimmed (M_ij, n_ij) (`robust_sums`) when the caller keeps them
+    per pair as it measures them (the incremental monitor), else they are computed here.
+    """
+    distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
+                           else robust)
+    tested = count >= parameters.min_points
+    return tested, statistics.standardized_inconsistency(
+        distance_sum, np.where(tested, count, 0), pair_scale)
+
+
+def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
+                   parameters: ConsistencyParameters,
+                   robust: tuple[np.ndarray, np.ndarray] | None = None,
+                   previous: ConsistencyResult | None = None,
+                   first_rows: np.ndarray | None = None) -> ConsistencyResult:
+    """The pairwise and cascaded tests on already measured pairs (no geometry).
+
+    `robust`: see `robust_statistic`. `previous`: the result of these parameters on the first
+    rows of these very pairs and sums (a map that only grew since): only the new pairs and
+    the pairs of scans whose scale changed are tested again, with the same result as testing
+    every pair (a live map has a million pairs, an update changes a few thousand).
+    `first_rows` (N,), with `previous`: no pair of scan i lies before row first_rows[i] (0
+    when unknown), so the rows before those of the new and rescaled scans are not even read.
+    """
+    scales = np.asarray(scales, dtype=np.float64)
+    if scales.shape != (scan_count,):
+        raise ValueError(f'expected {scan_count} scales, got shape {scales.shape}')
+    pairs = measures.pairs
+    robust = robust_sums(measures, parameters.trim_largest) if robust is None else robust
+    arrays = (np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+              np.asarray(robust[0], dtype=np.float64), np.asarray(robust[1], dtype=np.int64),
+              scales, parameters.min_points, statistics.normal_quantile(parameters.alpha))
+    if previous is None:
+        previous = ConsistencyResult.untested(parameters)
+    elif (previous.parameters != parameters or previous.scan_count > scan_count
+          or previous.pairs.shape[0] > arrays[0].shape[0]):
+        raise ValueError('the previous result is not of a prefix of these pairs')
+    grown = scan_count - previous.scan_count
+    old_scales = np.pad(previous.scales, (0, grown), constant_values=np.nan)
+    start = 0
+    if first_rows is not None:
+        retested = np.flatnonzero(scales != old_scales)  # NaN for the new scans: all of them
+        start = min(int(first_rows[retested].min()) if retested.size else arrays[0].shape[0],
+                    previous.pairs.shape[0])
+    tested, statistic, failed, overlap_counts, failed_counts = _pairwise_tests(
+        *arrays, start, old_scales, previous.tested, previous.statistic, previous.failed,
+        np.pad(previous.overlap_counts, (0, grown)), np.pad(previous.failed_counts, (0, grown)))
+    critical = statistics.binomial_critical_count(overlap_counts, parameters.failure_probability,
+                                                  parameters.binomial_alpha)
+    inconsistent = failed_counts > critical
+    if parameters.flag_window > 0:
+        inconsistent = _filter_isolated_flags(inconsistent, parameters.flag_window)
+    return ConsistencyResult(
+        pairs=pairs, distance_sum=measures.distance_sum, point_count=measures.point_count,
+        trimmed_sum=robust[0], trimmed_count=robust[1], tested=tested, statistic=statistic,
+        failed=failed, scales=scales,
+        overlap_counts=overlap_counts, failed_counts=failed_counts, critical_counts=critical,
+        inconsistent=inconsistent, parameters=parameters)
+
+
+@njit(cache=True)
+def _pairwise_tests(pairs: np.ndarray, trimmed_sum: np.ndarray, trimmed_count: np.ndarray,
+                    scales: np.ndarray, min_points: int, threshold: float, start: int,
+                    old_scales: np.ndarray, old_tested: np.ndarray, old_statistic: np.ndarray,
+                    old_failed: np.ndarray, old_overlaps: np.ndarray, old_failures: np.ndarray):
+    """Per pair: tested (enough points), Psi_ij with s = max(s_i, s_j) (NaN untested), failed
+    (Psi_ij above the threshold); per scan: its tested and failed pairs (r_i and the count
+    the cascaded test compares with nu-hat). Given these outputs on the first old_tested.size
+    pairs with `old_scales` (NaN for scans added since), only the pairs of a scan whose scale
+    changed and the new pairs are tested; the others keep their outcome and counts. Rows
+    before `start` hold none of those (the caller knows where their pairs begin)."""
+    count, known = pairs.shape[0], old_tested.size
+    # each output row written once: a million pairs make these copies the cost of an update
+    tested, statistic = np.empty(count, dtype=np.bool_), np.empty(count)
+    failed = np.empty(count, dtype=np.bool_)
+    tested[:known], statistic[:known], failed[:known] = old_tested, old_statistic, old_failed
+    tested[known:], statistic[known:], failed[known:] = False, np.nan, False
+    overlaps, failures = old_overlaps.copy(), old_failures.copy()
+    rescaled = scales != old_scales  # NaN for new scans: always true
+    for index in range(start, count):
+        first, second = pairs[index, 0], pairs[index, 1]
+        if index < known:
+            if not (rescaled[first] or rescaled[second]):
+                continue
+            if tested[index]:
+                overlaps[first] -= 1
+                overlaps[second] -= 1
+            if failed[index]:
+                failures[first] -= 1
+                failures[second] -= 1
+            tested[index], statistic[index], failed[index] = False, np.nan, False
+        if trimmed_count[index] < min_points:
+            continue
+        tested[index] = True
+        overlaps[first] += 1
+        overlaps[second] += 1
+        scale = max(scales[first], scales[second])
+        statistic[index] = statistics.psi(trimmed_sum[index], float(trimmed_count[index]), scale)
+        if statistic[index] > threshold:
+            failed[index] = True
+            failures[first] += 1
+            failures[second] += 1
+    return tested, statistic, failed, overlaps, failures
+
+
+def local_pairs(scans: ScanSet, window: int) -> np.ndarray:
+    """Pairs of temporally adjacent scans (index distance <= window / 2) whose extents overlap."""
+    half = _half_window(window)
+    count = scans.extents.shape[0]
+    first = np.repeat(np.arange(count), half)
+    second = first + np.tile(np.arange(1, half + 1), count)
+    keep = second < count
+    first, second = first[keep], second[keep]
+    overlap = extents_overlap(scans.extents[first], scans.extents[second])
+    return np.stack([first[overlap], second[overlap]], axis=1).astype(np.int64)
+
+
+def _select(measures: PairMeasures, rows: np.ndarray) -> PairMeasures:
+    return PairMeasures(pairs=measures.pairs[rows], distance_sum=measures.distance_sum[rows],
+                        point_count=measures.point_count[rows], largest=measures.largest[rows])
+
+
+def measure_pairs(scans: ScanSet, pairs: np.ndarray, keep_largest: int,
+                  progress: Progress | None = None, chunk: int = 8192) -> PairMeasures:
+    """pair_measures in chunks, so that long runs can report progress."""
+    if progress is None or len(pairs) <= chunk:
+        measures = pair_measures(scans, pairs, keep_largest=keep_largest)
+        if progress is not None:
+            progress(len(pairs), len(pairs))
+        return measures
+    parts = []
+    for start in range(0, len(pairs), chunk):
+        parts.append(pair_measures(scans, pairs[start:start + chunk], keep_largest=keep_largest))
+        progress(min(start + chunk, len(pairs)), len(pairs))
+    return PairMeasures(
+        pairs=np.concatenate([part.pairs for part in parts]),
+        distance_sum=np.concatenate([part.distance_sum for part in parts]),
+        point_count=np.concatenate([part.point_count for part in parts]),
+        largest=np.concatenate([part.largest for part in parts]))
+
+
+def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None = None,
+                      reference_scans: ScanSet | None = None,
+                      progress: Progress | None = None) -> ConsistencyResult:
+    """Run the whole test on scans placed in the map.
+
+    `reference_scans` are the same scans at the incremental solution (poses before loop
+    closures), from which the local scales are fitted; by default the map itself.
+    """
+    parameters = parameters or ConsistencyParameters()
+    reference = scans if reference_scans is None else reference_scans
+    if reference.ranges.shape != scans.ranges.shape:
+        raise ValueError('reference scans must be the same scans as the map scans')
+    keep = parameters.trim_largest
+    measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress)
+    if reference_scans is None:
+        # The local pairs are the candidate pairs of temporal neighbours: measured already.
+        gap = measures.pairs[:, 1] - measures.pairs[:, 0]
+        local = _select(measures, gap <= parameters.local_reach)
+    else:
+        local = pair_measures(reference, local_pairs(reference, parameters.local_window),
+                              keep_largest=keep)
+    scales = local_scales(local, scans.ranges.shape[0], parameters)
+    return evaluate_pairs(measures, scales, scans.ranges.shape[0], parameters)
+
+
+def average_inconsistency(measures: PairMeasures) -> float:
+    """M(Phi) of eq. 11: the mean M_ij over the pairs whose polygons overlap (n_ij > 0)."""
+    overlapping = measures.point_count > 0
+    if not overlapping.any():
+        return 0.0
+    return float(measures.distance_sum[overlapping].mean())
+
+
+def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
+                           max_pairs: int | None = None, min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) inside the other scan's polygon in failed pairs (the paper's Fig. 1).
+
+    Only failed pairs that involve an inconsistent scan count, the `max_pairs` with the largest
+    statistic (all when None), so that a badly broken map stays cheap to draw. A point counts
+    when it lies deeper than `min_depth` times the pair's scale max(s_i, s_j) inside.
+    """
+    flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
+    candidates = np.flatnonzero(result.failed & flagged)
+    order = np.argsort(-result.statistic[candidates], kind='stable')
+    return pair_endpoints(scans, result, candidates[order[:max_pairs]], min_depth)[0]
+
+
+_ENDPOINT_CHUNK = 2048  # pairs whose point distances are held at once (a few MB)
+
+
+def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                   min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
+    scales inside the other scan's polygon, and the scan each belongs to (M,)."""
+    pairs = result.pairs[np.asarray(rows, dtype=np.int64)]
+    points, owners = [np.zeros((0, 2))], [np.zeros(0, dtype=np.int64)]
+    for start in range(0, len(pairs), _ENDPOINT_CHUNK):  # (P, 2, K) floats at a time
+        chunk = pairs[start:start + _ENDPOINT_CHUNK]
+        depth = pairs_point_distances(scans, chunk)  # points of j, then of i
+        limit = min_depth * np.maximum(result.scales[chunk[:, 0]], result.scales[chunk[:, 1]])
+        pair, side, beam = np.nonzero(depth > limit[:, None, None])
+        owner = chunk[pair, 1 - side]
+        points.append(scans.endpoints[owner, beam])
+        owners.append(owner)
+    return np.concatenate(points), np.concatenate(owners)

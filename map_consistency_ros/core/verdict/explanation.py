@@ -1,0 +1,776 @@
+"""The second stage of the verdict: explain every failed pair as misalignment or change.
+
+The paper's test (core/consistency) asks whether the inconsistency distances of a pair exceed
+sensor noise. On real maps they also do where the world changed between two visits (people,
+doors, chairs, no-return beams), which is no error of the map. This stage explains each failed
+pair that contributes to a flagged scan:
+
+- the submaps around its two scans (`block` consecutive scans each, widened by `margin`) are
+  registered robustly (_registration.py): the correction of the later side onto the earlier one,
+  with its covariance and the fraction of the surfaces that agree;
+- misaligned: the correction is determined, plausible (within `max_translation` /
+  `max_rotation_deg`), statistically different from zero, moves the later scan's end points by
+  more than `misalignment_tolerance`, and with it the pair passes the pairwise test;
+- minor: a correction within the tolerance, or not significant, makes the pair pass;
+- change: the static surfaces agree but no rigid correction makes the pair pass;
+- unregistered: the surfaces do not agree or the correction is beyond plausible (a gross error
+  that local registration cannot converge on). Counted as misaligned: a map error of metres
+  must never pass as a change.
+
+Misaligned and unregistered pairs go through the paper's cascaded binomial test per scan; scans
+that fail it form misaligned regions, joined through their pairs and temporal adjacency. The
+map is inconsistent when a misaligned region exists. Changes never fail a map; their deep end
+points are grouped into changed places and reported. `strict` keeps the paper's verdict.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  Progress, check_consistency,
+                                                  inconsistent_endpoints, pair_endpoints,
+                                                  robust_statistic, statistics)
+from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
+from map_consistency_ros.core.parameters import parameter, specs
+from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
+                                                            register_submaps, surface_points)
+
+MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
+PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)
+_CLASS_CODE = {name: code for code, name in enumerate(PAIR_CLASSES)}
+
+
+@dataclass(frozen=True)
+class ExplanationSettings:
+    """How failed pairs are explained and what the map may bear (defaults: docs/verdict.md)."""
+
+    misalignment_tolerance: float = parameter(
+        0.1, 'misalignments moving end points further (root mean square) make the map '
+        'inconsistent', 'm', (0.0, 10.0))
+    strict: bool = parameter(
+        False, "the paper's verdict instead: every scan failing its cascaded test fails the map")
+    block: int = parameter(5, 'consecutive scans registered as one rigid submap', 'scans',
+                           (1, 1000))
+    margin: int = parameter(3, 'scans added on each side of a block to its submap', 'scans',
+                            (0, 1000))
+    max_translation: float = parameter(0.5, 'largest correction trusted as a local misalignment',
+                                       'm', (0.01, 100.0))
+    max_rotation_deg: float = parameter(10.0, 'largest rotation trusted as a local misalignment',
+                                        'deg', (0.1, 180.0))
+    significance: float = parameter(
+        0.001, 'level of the chi-square test that a correction differs from zero', '',
+        (1e-12, 0.5))
+    min_registrations: int = parameter(
+        3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
+    min_region_scans: int = parameter(
+        3, 'consecutive keyframes a misaligned region must hold on each side (a stretch, not '
+        'scans here and there)', 'scans', (1, 1000))
+    min_resolved_fraction: float = parameter(
+        0.5, 'share of the failing overlaps between two submaps, and between a region and its '
+        'reference scans, that a correction must mend, net of those it breaks', '', (0.0, 1.0))
+    gross_fraction: float = parameter(
+        0.5, 'a scan whose pairs fail unexplained more often than this (binomial test) sees a '
+        'gross error, not changes', '', (0.01, 0.99))
+    change_depth: float = parameter(
+        3.0, 'end points this many pair scales inside free space mark a change', 'scales',
+        (0.0, 100.0))
+    change_cell: float = parameter(0.5, 'changed end points closer than this form one place',
+                                   'm', (0.01, 100.0))
+    max_change_extent: float = parameter(
+        3.0, 'largest place a change can span (people, doors, furniture); a region beyond '
+        'registration must show most of its inconsistent end points in larger places', 'm',
+        (0.1, 1000.0))
+
+    def __post_init__(self) -> None:
+        for spec in specs(ExplanationSettings):
+            spec.check(getattr(self, spec.name))
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class Misalignment:
+    """A region of scans displaced rigidly relative to reference scans."""
+
+    scans: np.ndarray  # the later side, which the correction moves
+    reference_scans: np.ndarray
+    correction: np.ndarray  # (3,) world transform x, y, theta moving `scans` onto the reference
+    correction_std: np.ndarray  # (3,) 1-sigma of the correction
+    displacement: float  # metres, RMS end-point displacement the correction implies; NaN
+    # when the region could not be registered (a gross error)
+    pairs: int  # misaligned or unregistered pairs behind the region
+    registered: bool
+
+
+@dataclass(frozen=True)
+class ChangedPlace:
+    """A cluster of end points inside free space another visit saw (people, moved objects)."""
+
+    scans: np.ndarray
+    x: float
+    y: float
+    points: int
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """The verdict on a map and its explanation."""
+
+    result: ConsistencyResult
+    settings: ExplanationSettings
+    explained_pairs: np.ndarray  # (E,) rows of result.pairs that were explained
+    pair_classes: np.ndarray  # (E,) int codes into PAIR_CLASSES
+    pair_corrections: np.ndarray  # (E, 3) world transforms moving the later scan
+    pair_displacements: np.ndarray  # (E,) metres
+    misaligned_scans: np.ndarray  # (N,) bool: failed the cascaded test on misaligned pairs
+    misalignments: tuple[Misalignment, ...]
+    changes: tuple[ChangedPlace, ...]
+    local_distortion: float  # metres (_local_distortion)
+    # registered regions whose correction moves their points by at most the tolerance: real,
+    # and reported, but no reason to fail the map
+    minor_misalignments: tuple[Misalignment, ...] = ()
+
+    @property
+    def distorted(self) -> bool:
+        """Consecutive scans disagree by more than the tolerance over most of the map: the
+        chain itself is bent (a back-end pulled apart by wrong constraints), whatever the
+        pairs say. Judged on maps of at least `min_region_scans` scans."""
+        return (self.result.scan_count >= self.settings.min_region_scans
+                and self.local_distortion > self.settings.misalignment_tolerance)
+
+    @property
+    def consistent(self) -> bool:
+        if self.settings.strict:
+            return self.result.consistent
+        return not self.misalignments and not self.distorted
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """(N,) the scans that make the map inconsistent under the active verdict."""
+        return self.result.inconsistent if self.settings.strict else self.misaligned_scans
+
+    def class_counts(self) -> dict[str, int]:
+        counts = np.bincount(self.pair_classes, minlength=len(PAIR_CLASSES))
+        return {name: int(counts[code]) for code, name in enumerate(PAIR_CLASSES)}
+
+    def summary_line(self) -> str:
+        """e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14 changed places."""
+        verdict = 'CONSISTENT' if self.consistent else 'INCONSISTENT'
+        places = len(self.changes)
+        changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
+        if self.settings.strict:
+            flagged = int(self.result.inconsistent.sum())
+            return f'{verdict}: {flagged} scans fail the paper\'s test (strict verdict); {changes}'
+        distortion = (f'locally distorted (consecutive scans disagree by '
+                      f'{self.local_distortion:.2f} m); ' if self.distorted else '')
+        if not self.misalignments:
+            tolerance = self.settings.misalignment_tolerance
+            minor = ''
+            if self.minor_misalignments:
+                count = len(self.minor_misalignments)
+                largest = max(region.displacement for region in self.minor_misalignments)
+                minor = (f' ({count} minor region{"s" if count > 1 else ""} within it, '
+                         f'largest {largest:.2f} m)')
+            return (f'{verdict}: {distortion}no misalignment above {tolerance:.2f} m{minor}; '
+                    f'{changes}')
+        largest = _largest(self.misalignments)
+        if largest.registered:
+            size = (f'largest {largest.displacement:.2f} m, '
+                    f'{abs(math.degrees(largest.correction[2])):.1f} deg')
+        else:
+            size = 'largest beyond local registration, a gross error'
+        count = len(self.misalignments)
+        regions = f'{count} misaligned region{"s" if count > 1 else ""}'
+        return f'{verdict}: {distortion}{regions} ({size}); {changes}'
+
+
+def _local_distortion(result: ConsistencyResult) -> float:
+    """Metres: the mean inconsistency distance between the median scan of the map and its
+    temporal neighbours, the half-normal mean sqrt(2 / pi) s of the median of the map's own
+    local scales s_i (not those of an incremental solution the test may have used)."""
+    if result.scan_count == 0:
+        return 0.0
+    return float(np.median(result.own_scales())) * statistics.HALFNORMAL_MEAN_FACTOR
+
+
+def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
+    unregistered = [item for item in misalignments if not item.registered]
+    if unregistered:
+        return max(unregistered, key=lambda item: item.pairs)
+    return max(misalignments, key=lambda item: item.displacement)
+
+
+def _submap(block: int, settings: ExplanationSettings, scan_count: int) -> tuple[int, int]:
+    low = block * settings.block - settings.margin
+    high = (block + 1) * settings.block + settings.margin
+    return max(low, 0), min(high, scan_count)
+
+
+def _tasks(pairs: np.ndarray, settings: ExplanationSettings,
+           scan_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Registration tasks (r0, r1, q0, q1) per block pair, and the task of every pair.
+
+    Submaps of blocks close in time would share scans: there each pair gets submaps of its
+    own that reach away from each other (the earlier scan and those before it, the later
+    scan and those after it), so neither straddles the stretch between them.
+    """
+    blocks = pairs // settings.block
+    near = blocks[:, 1] - blocks[:, 0] <= 1 + (2 * settings.margin) // max(settings.block, 1)
+    keys = np.where(near, -1 - np.arange(len(pairs)), blocks[:, 0] * scan_count + blocks[:, 1])
+    unique, task_of_pair = np.unique(keys, return_inverse=True)
+    tasks = np.zeros((unique.size, 4), dtype=np.int64)
+    first_pair = np.zeros(unique.size, dtype=np.int64)
+    first_pair[task_of_pair[::-1]] = np.arange(len(pairs))[::-1]
+    reach = settings.margin + settings.block // 2
+    for task, pair in enumerate(first_pair):
+        i, j = pairs[pair]
+        if near[pair]:
+            tasks[task] = (max(i - reach, 0), i + 1, j, min(j + reach + 1, scan_count))
+        else:
+            tasks[task] = (*_submap(int(blocks[pair, 0]), settings, scan_count),
+                           *_submap(int(blocks[pair, 1]), settings, scan_count))
+    return tasks, task_of_pair.reshape(-1)
+
+
+@dataclass(frozen=True)
+class PointMoments:
+    """Per scan: the number of valid end points (N,), their mean (N, 2) and mean squared norm
+    (N,): enough for the RMS displacement of any rigid transform, without the points."""
+
+    count: np.ndarray
+    mean: np.ndarray
+    square: np.ndarray
+
+    @classmethod
+    def of(cls, scans: ScanSet) -> PointMoments:
+        valid = scans.valid
+        count = valid.sum(axis=1)
+        safe = np.maximum(count, 1)
+        x, y = scans.endpoints[..., 0], scans.endpoints[..., 1]
+        mean = np.stack([np.where(valid, x, 0.0).sum(axis=1),
+                         np.where(valid, y, 0.0).sum(axis=1)], axis=1) / safe[:, None]
+        return cls(count, mean, np.where(valid, x * x + y * y, 0.0).sum(axis=1) / safe)
+
+    def pooled(self, scans: np.ndarray) -> PointMoments:
+        """The moments of the points of `scans` taken together, as one set (1,)."""
+        count = self.count[scans]
+        weight = count / max(int(count.sum()), 1)
+        return PointMoments(np.array([count.sum()]), (weight[:, None] * self.mean[scans]).sum(
+            axis=0)[None], np.array([(weight * self.square[scans]).sum()]))
+
+    def displacement(self, transforms: np.ndarray, rows: np.ndarray | None = None
+                     ) -> np.ndarray:
+        """(E,) root mean square distance the world transforms (E, 3) move the points of the
+        scans `rows` (E,) (all sets when None): the mean of |(R - I) p + t|^2 in closed form,
+        as (R - I)^T (R - I) = 4 sin^2(theta / 2) I."""
+        count, mean, square = ((self.count, self.mean, self.square) if rows is None else
+                               (self.count[rows], self.mean[rows], self.square[rows]))
+        theta, tx, ty = transforms[:, 2], transforms[:, 0], transforms[:, 1]
+        half_turn = np.sin(theta / 2.0) ** 2  # 1 - cos(theta) = 2 half_turn, exact near zero
+        sin = np.sin(theta)
+        rx = -2.0 * half_turn * mean[:, 0] - sin * mean[:, 1]
+        ry = sin * mean[:, 0] - 2.0 * half_turn * mean[:, 1]
+        mean_square = (4.0 * half_turn * square + 2.0 * (tx * rx + ty * ry)
+                       + tx * tx + ty * ty)
+        return np.where(count > 0, np.sqrt(np.maximum(mean_square, 0.0)), 0.0)
+
+
+_CORRECTED_CHUNK = 4096  # pairs re-placed at once: 2 scans each, a few tens of MB
+
+
+def _corrected_pairs_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+                          transforms: np.ndarray) -> np.ndarray:
+    """Whether each pair (i, j) passes the pairwise test with j moved by its transform."""
+    passes = [np.zeros(0, dtype=bool)]
+    for start in range(0, len(pairs), _CORRECTED_CHUNK):  # two placed scans per pair at a time
+        part = slice(start, start + _CORRECTED_CHUNK)
+        passes.append(_corrected_chunk_pass(scans, result, pairs[part], transforms[part]))
+    return np.concatenate(passes)
+
+
+def _corrected_chunk_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.ndarray,
+                          transforms: np.ndarray) -> np.ndarray:
+    first, second = pairs[:, 0], pairs[:, 1]
+    # one set of the fixed scans, each once, followed by the moved j of every pair
+    fixed_rows, fixed_of_pair = np.unique(first, return_inverse=True)
+    fixed, moved = scans.take(fixed_rows), scans.moved(second, transforms)
+    placed = ScanSet.from_parts(scans.model, **{
+        name: np.concatenate([getattr(fixed, name), getattr(moved, name)])
+        for name in SCAN_ARRAYS})
+    measures = pair_measures(placed, np.stack([fixed_of_pair.reshape(-1),
+                                               fixed_rows.size + np.arange(len(pairs))], axis=1),
+                             keep_largest=max(result.parameters.trim_largest, 1))
+    scale = np.maximum(result.scales[first], result.scales[second])
+    tested, statistic = robust_statistic(measures, scale, result.parameters)
+    return ~(tested & (statistic > statistics.normal_quantile(result.parameters.alpha)))
+
+
+def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np.ndarray,
+              displacement: np.ndarray,
+              settings: ExplanationSettings) -> np.ndarray:
+    correction = registrations.corrections[task_of_pair]
+    # A covariance that is singular or not finite (a fit that left no residual, as between the
+    # identical scans of a robot standing still; a corridor) leaves the correction undetermined.
+    mahalanobis = statistics.mahalanobis_squared(registrations.corrections,
+                                                 registrations.covariances)[task_of_pair]
+    determined = registrations.determined[task_of_pair] & np.isfinite(mahalanobis)
+    plausible = ((np.hypot(correction[:, 0], correction[:, 1]) <= settings.max_translation)
+                 & (np.abs(np.degrees(correction[:, 2])) <= settings.max_rotation_deg))
+    registered = determined & plausible
+    significant = registered & (mahalanobis
+                                > statistics.chi_square_3_quantile(settings.significance))
+    codes = np.full(len(task_of_pair), _CLASS_CODE[CHANGE], dtype=np.int64)
+    codes[determined & ~plausible & ~passes] = _CLASS_CODE[UNREGISTERED]
+    codes[registered & passes] = _CLASS_CODE[MINOR]
+    codes[registered & passes & significant
+          & (displacement > settings.misalignment_tolerance)] = _CLASS_CODE[MISALIGNED]
+    return codes
+
+
+def _cascaded(result: ConsistencyResult, pairs: np.ndarray, bad: np.ndarray,
+              probability: float | None = None) -> np.ndarray:
+    """Scans with more `bad` pairs than the cascaded binomial test allows at failure
+    `probability` per pair (default: the paper's)."""
+    count = result.scan_count
+    bad_counts = (np.bincount(pairs[bad, 0], minlength=count)
+                  + np.bincount(pairs[bad, 1], minlength=count))
+    if probability is None:
+        return bad_counts > result.critical_counts
+    return bad_counts > statistics.binomial_critical_count(
+        result.overlap_counts, probability, result.parameters.binomial_alpha)
+
+
+def _components(scan_count: int, links: np.ndarray) -> np.ndarray:
+    """Union-find labels (the smallest member) of nodes joined by the rows of `links` (L, 2)."""
+    return _union_find(scan_count, np.ascontiguousarray(links, dtype=np.int64).reshape(-1, 2))
+
+
+@numba.njit(cache=True)
+def _union_find(count: int, links: np.ndarray) -> np.ndarray:
+    parent = np.arange(count)
+    for row in range(links.shape[0]):
+        a, b = _root(parent, links[row, 0]), _root(parent, links[row, 1])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    for node in range(count):
+        parent[node] = _root(parent, node)
+    return parent
+
+
+@numba.njit(cache=True)
+def _root(parent: np.ndarray, node: int) -> int:
+    while parent[node] != node:
+        parent[node] = parent[parent[node]]
+        node = parent[node]
+    return node
+
+
+def agreeing_registrations(moments: PointMoments, rows: np.ndarray, pairs: np.ndarray,
+                           transforms: np.ndarray, task_of_pair: np.ndarray,
+                           correction: np.ndarray, settings: ExplanationSettings) -> int:
+    """Independent registrations (tasks) whose correction places the later scan's points within
+    the tolerance (RMS) of where the region's correction places them: a loop-closure error
+    moves a stretch rigidly, so its submaps agree."""
+    later = pairs[rows, 1]
+    # |T_k p - C p| = |C^-1 T_k p - p|: C^-1 T_k moves the points as far from C's placement
+    relative = se2.relative(correction, transforms[rows])
+    agree = moments.displacement(relative, later) <= settings.misalignment_tolerance
+    return int(np.unique(task_of_pair[rows[agree]]).size)
+
+
+def _consensus(points: PointMoments, transforms: np.ndarray) -> np.ndarray:
+    """The world transform among `transforms` (E, 3) that places the `points` (one pooled
+    set) nearest to where the others place them: the median displacement to the others, the
+    smallest. Not the median of x, y and theta taken apart: a world transform's translation
+    is R-dependent (t = c - R c about the centre c of the turn), so on a map tens of metres
+    from its origin a median theta and a median (x, y) from different registrations are no
+    rigid motion of the region, and place its points up to metres away."""
+    unique = np.unique(transforms, axis=0)
+    if len(unique) == 1:
+        return unique[0]
+    if len(unique) > _CONSENSUS_CANDIDATES:  # bounded cost: a spread subset of candidates
+        unique = unique[np.linspace(0, len(unique) - 1, _CONSENSUS_CANDIDATES).astype(int)]
+    count = len(unique)
+    first, second = np.repeat(np.arange(count), count), np.tile(np.arange(count), count)
+    relative = se2.relative(unique[first], unique[second])
+    apart = points.displacement(relative, np.zeros(relative.shape[0], dtype=np.int64))
+    return unique[int(np.argmin(np.median(apart.reshape(count, count), axis=1)))]
+
+
+_CONSENSUS_CANDIDATES = 200
+
+
+def longest_run(scans: np.ndarray, gap: int) -> int:
+    """The most scans of sorted indices `scans` joined by steps of at most `gap`."""
+    if scans.size == 0:
+        return 0
+    breaks = np.flatnonzero(np.diff(scans) > gap)
+    bounds = np.concatenate([[0], breaks + 1, [scans.size]])
+    return int(np.diff(bounds).max())
+
+
+_CONFIRM_SAMPLE = 36  # overlaps re-measured per registration: enough for a share, bounded
+
+
+def _spans(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The integers of the ranges [low_k, high_k) one after another, and the k of each."""
+    lengths = high - low
+    owner = np.repeat(np.arange(lengths.size), lengths)
+    return np.repeat(low - np.cumsum(lengths) + lengths, lengths) + np.arange(owner.size), owner
+
+
+def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The tested pairs between the reference and the query submap of each task (r0, r1, q0,
+    q1), oriented (reference scan, query scan): rows into result.pairs (M,) and task ids (M,).
+    At most _CONFIRM_SAMPLE per task, evenly spread."""
+    count = result.scan_count
+    tested = np.flatnonzero(result.tested)
+    first, second = result.pairs[tested, 0], result.pairs[tested, 1]
+    keys = np.concatenate([first * count + second, second * count + first])
+    rows = np.concatenate([tested, tested])
+    order = np.argsort(keys, kind='stable')
+    keys, rows = keys[order], rows[order]
+    scan, task_of_scan = _spans(tasks[:, 0], tasks[:, 1])  # the reference scans of each task
+    picked, of_scan = _spans(np.searchsorted(keys, scan * count + tasks[task_of_scan, 2]),
+                             np.searchsorted(keys, scan * count + tasks[task_of_scan, 3]))
+    task_ids = task_of_scan[of_scan]
+    if picked.size:  # evenly thin each task's overlaps (contiguous per task) to the sample
+        task_total = np.bincount(task_ids, minlength=len(tasks))
+        rank = np.arange(picked.size) - np.repeat(np.cumsum(task_total) - task_total,
+                                                  task_total)
+        step = np.maximum(1, -(-task_total // _CONFIRM_SAMPLE))
+        keep = rank % step[task_ids] == 0
+        picked, task_ids = picked[keep], task_ids[keep]
+    return rows[picked], task_ids
+
+
+def corrections_confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
+                          transforms: np.ndarray, settings: ExplanationSettings) -> np.ndarray:
+    """(T,) whether each registration's correction (world transforms (T, 3) of the query
+    submap) resolves at least `min_resolved_fraction` of the failing tested pairs between its
+    two submaps, net of the passing pairs it breaks.
+
+    A rigid error of the query submap makes most pairs between the two submaps fail, changes
+    aside, and its correction resolves them. A correction that snapped onto a moved object or a
+    person resolves the pairs that see it and breaks those that see the static walls.
+    """
+    rows, task_ids = _task_overlaps(result, tasks)
+    pairs = result.pairs[rows]
+    in_query = (pairs >= tasks[task_ids, 2:3]) & (pairs < tasks[task_ids, 3:4])
+    failing, after = _failing_before_after(scans, result, rows, in_query[:, 0] & ~in_query[:, 1],
+                                           transforms[task_ids], task_ids, len(tasks))
+    return (failing > 0) & (failing - after >= settings.min_resolved_fraction * failing)
+
+
+def _failing_before_after(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                          first_moves: np.ndarray, transforms: np.ndarray, groups: np.ndarray,
+                          group_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(G,) twice, per group of the tested pairs `rows` of `result`: how many fail as they
+    are, and how many fail with one scan of each pair moved by its world transform (the first
+    where `first_moves`, else the second)."""
+    pairs = result.pairs[rows]
+    oriented = np.where(first_moves[:, None], pairs[:, ::-1], pairs)
+    passes = _corrected_pairs_pass(scans, result, oriented, transforms)
+    return (np.bincount(groups, weights=result.failed[rows], minlength=group_count),
+            np.bincount(groups, weights=~passes, minlength=group_count))
+
+
+_RESOLVED_SAMPLE = 2000  # overlaps re-measured per region: enough for a share, bounded cost
+
+
+def _resolved_fraction(scans: ScanSet, result: ConsistencyResult, moved: np.ndarray,
+                       reference: np.ndarray, correction: np.ndarray) -> float:
+    """The share of the failing tested pairs between `moved` and `reference` scans that pass
+    with `moved` placed by the world transform `correction`, net of the passing pairs it breaks
+    (0 when none fails): a region's correction must mend what its registrations mend one by
+    one."""
+    in_moved = np.zeros(result.scan_count, dtype=bool)
+    in_moved[moved] = True
+    in_reference = np.zeros(result.scan_count, dtype=bool)
+    in_reference[reference] = True
+    first, second = result.pairs[:, 0], result.pairs[:, 1]
+    rows = np.flatnonzero(result.tested & ((in_moved[first] & in_reference[second])
+                                           | (in_reference[first] & in_moved[second])))
+    rows = rows[::max(1, -(-rows.size // _RESOLVED_SAMPLE))]
+    (failing,), (after,) = _failing_before_after(
+        scans, result, rows, in_moved[result.pairs[rows, 0]],
+        np.repeat(correction[None], rows.size, axis=0), np.zeros(rows.size, dtype=np.int64), 1)
+    return 0.0 if failing == 0 else 1.0 - after / failing
+
+
+def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> bool:
+    """Whether most `pairs` (P, 2) join scans within a submap's reach of each other in time:
+    the world does not change between consecutive keyframes (people aside, who make small
+    places), so such failures are a break of the chain itself, a block displaced against its
+    own neighbours, not a revisit of a changed room."""
+    reach = 2 * settings.margin + settings.block
+    return bool(np.count_nonzero(pairs[:, 1] - pairs[:, 0] <= reach) * 2 > len(pairs))
+
+
+def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
+             moments: PointMoments, bad: np.ndarray, codes: np.ndarray,
+             transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
+             flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+    """Misaligned regions from the explained pairs (rows `explained` of `result`)."""
+    pairs = result.pairs[explained]
+    on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
+    if not on_flagged.any():
+        return ()
+    indices = np.flatnonzero(flagged)
+    adjacent = np.stack([indices[:-1], indices[1:]], axis=1)
+    adjacent = adjacent[np.diff(indices) <= settings.block]
+    labels = _components(scans.scan_count, np.concatenate([pairs[on_flagged], adjacent]))
+    regions = []
+    for label in np.unique(labels[pairs[on_flagged, 0]]):
+        rows = np.flatnonzero(on_flagged & (labels[pairs[:, 0]] == label))
+        moved = np.unique(pairs[rows, 1])
+        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
+        if min(longest_run(moved, settings.block),
+               longest_run(reference, settings.block)) < settings.min_region_scans:
+            continue  # scans out of place here and there, or a revisit seen from one scan
+        registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
+        registered = False
+        if registered_rows.size * 2 >= rows.size:
+            correction = _consensus(moments.pooled(moved), transforms[registered_rows])
+            # A correction that its registrations do not confirm, or that does not mend the
+            # region, is no measurement of it; the region is then judged as beyond
+            # registration (below), not dropped: a stretch displaced further than the
+            # registrations reach (a turn of 5 degrees moves points 20 m away by 1.7 m) makes
+            # them snap onto the wrong walls, and agree on it.
+            registered = (
+                agreeing_registrations(moments, registered_rows, pairs, transforms,
+                                       task_of_pair, correction, settings)
+                >= settings.min_registrations
+                and _resolved_fraction(scans, result, moved, reference, correction)
+                >= settings.min_resolved_fraction)
+        if registered:
+            spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
+                                                   axis2=2), axis=0))
+            displacement = float(moments.pooled(moved).displacement(correction[None])[0])
+        else:
+            # beyond registration, no correction corroborates it: a displaced stretch of at
+            # least a block, spread wider than any change, that several registrations fail on
+            if (np.unique(task_of_pair[rows]).size < settings.min_registrations
+                    or longest_run(moved, settings.block) < settings.block
+                    or not (_mostly_consecutive(pairs[rows], settings)
+                            or _spans_beyond_changes(scans, result, explained[rows],
+                                                     settings))):
+                continue
+            correction = np.full(3, np.nan)
+            spread = np.full(3, np.nan)
+            displacement = math.nan
+        regions.append(Misalignment(scans=moved, reference_scans=reference,
+                                    correction=correction, correction_std=spread,
+                                    displacement=displacement, pairs=int(rows.size),
+                                    registered=bool(registered)))
+    return tuple(regions)
+
+
+def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> np.ndarray:
+    flagged = np.zeros(scan_count, dtype=bool)
+    for region in misalignments:
+        flagged[region.scans] = True
+        flagged[region.reference_scans] = True
+    return flagged
+
+
+def place_labels(points: np.ndarray, cell: float) -> np.ndarray:
+    """Labels (M,) of points (M, 2) joined through neighbouring cells of size `cell`."""
+    cells = np.floor(points / cell).astype(np.int64)
+    cells -= cells.min(axis=0) - 1  # every neighbour of a cell has non-negative coordinates
+    width = int(cells[:, 1].max()) + 2
+    unique, cell_of_point = np.unique(cells[:, 0] * width + cells[:, 1], return_inverse=True)
+    # half of the eight neighbours suffices: a link joins both ways
+    neighbours = unique[:, None] + np.array([width - 1, width, width + 1, 1])[None]
+    found = np.minimum(np.searchsorted(unique, neighbours), unique.size - 1)
+    present = unique[found] == neighbours
+    links = np.stack([np.nonzero(present)[0], found[present]], axis=1)
+    return _components(unique.size, links)[cell_of_point.reshape(-1)]
+
+
+def _changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+             settings: ExplanationSettings) -> tuple[ChangedPlace, ...]:
+    """The deep end points of the change pairs `rows` of `result`, grouped into places."""
+    points, owners = pair_endpoints(scans, result, rows, settings.change_depth)
+    if not len(points):
+        return ()
+    labels = place_labels(points, settings.change_cell)
+    places = []
+    for label in np.unique(labels):
+        members = labels == label
+        centre = points[members].mean(axis=0)
+        places.append(ChangedPlace(scans=np.unique(owners[members]), x=float(centre[0]),
+                                   y=float(centre[1]), points=int(members.sum())))
+    return tuple(sorted(places, key=lambda place: -place.points))
+
+
+_EXTENT_SAMPLE = 2000  # pairs whose end points show a region's extent: bounded cost
+
+
+def _spans_beyond_changes(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
+                          settings: ExplanationSettings) -> bool:
+    """Whether most deep inconsistent end points of the pairs `rows` lie in places wider than
+    any change: a gross error crosses whole walls and rooms (places of 5-40 m on displaced
+    copies), people, doors and furniture make places of a metre or two."""
+    rows = rows[::max(1, -(-rows.size // _EXTENT_SAMPLE))]
+    points, _ = pair_endpoints(scans, result, rows, settings.change_depth)
+    if not len(points):
+        return False
+    labels = place_labels(points, settings.change_cell)
+    low = np.full((labels.max() + 1, 2), np.inf)
+    high = np.full((labels.max() + 1, 2), -np.inf)
+    np.minimum.at(low, labels, points)
+    np.maximum.at(high, labels, points)
+    extent = np.hypot(*(high - low).T)
+    return bool(np.count_nonzero(extent[labels] > settings.max_change_extent) * 2 > len(points))
+
+
+def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessment:
+    return Assessment(result=result, settings=settings, explained_pairs=np.zeros(0, np.int64),
+                      pair_classes=np.zeros(0, np.int64), pair_corrections=np.zeros((0, 3)),
+                      pair_displacements=np.zeros(0),
+                      misaligned_scans=np.zeros(result.scan_count, dtype=bool),
+                      misalignments=(), changes=(), local_distortion=_local_distortion(result))
+
+
+class RegistrationCache:
+    """Registrations of submaps already registered, keyed by their scans and poses.
+
+    A live map changes a little per keyframe: most registrations of the last explanation
+    still hold. Bounded: the oldest entries go first beyond `capacity`.
+    """
+
+    def __init__(self, capacity: int = 50_000) -> None:
+        self.capacity = capacity
+        self._entries: dict[bytes, tuple] = {}
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @staticmethod
+    def _keys(scans: ScanSet, tasks: np.ndarray) -> list[bytes]:
+        poses, ranges = scans.sensor_poses, scans.ranges
+        return [b''.join((row.tobytes(), poses[row[0]:row[1]].tobytes(),
+                          poses[row[2]:row[3]].tobytes(),
+                          ranges[row[0]:row[1], ::16].tobytes(),
+                          ranges[row[2]:row[3], ::16].tobytes())) for row in tasks]
+
+    def register(self, scans: ScanSet, tasks: np.ndarray,
+                 settings: RegistrationSettings | None) -> Registrations:
+        """register_submaps of `tasks`, computing only those not registered before."""
+        keys = self._keys(scans, tasks)
+        missing = [index for index, key in enumerate(keys) if key not in self._entries]
+        if missing:
+            fresh = register_submaps(surface_points(scans.endpoints, scans.valid),
+                                     tasks[missing], settings)
+            for row, index in enumerate(missing):
+                self._entries[keys[index]] = (
+                    fresh.corrections[row], fresh.centroids[row], fresh.covariances[row],
+                    fresh.matched[row], fresh.determined[row])
+        entries = [self._entries[key] for key in keys]
+        while len(self._entries) > self.capacity:
+            del self._entries[next(iter(self._entries))]
+        if not entries:
+            return register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                    settings)
+        corrections, centroids, covariances, matched, determined = (
+            np.array(column) for column in zip(*entries))
+        return Registrations(corrections=corrections.reshape(-1, 3),
+                             centroids=centroids.reshape(-1, 2),
+                             covariances=covariances.reshape(-1, 3, 3),
+                             matched=matched.astype(np.int64),
+                             determined=determined.astype(bool))
+
+
+def explain(scans: ScanSet, result: ConsistencyResult,
+            settings: ExplanationSettings | None = None,
+            registration: RegistrationSettings | None = None,
+            cache: RegistrationCache | None = None) -> Assessment:
+    """Explain the failed pairs of `result` on the map `scans` and make the verdict.
+
+    Only failed pairs that involve a scan flagged by the paper's test are explained: the others
+    cannot change the verdict. A map that passes the paper's test costs nothing here. A
+    `cache` kept across calls on a growing map skips the registrations that still hold.
+    """
+    settings = settings or ExplanationSettings()
+    if scans.scan_count != result.scan_count:
+        raise ValueError(f'{scans.scan_count} scans for a result on {result.scan_count}')
+    pairs_all = result.pairs
+    rows = np.flatnonzero(result.failed & (result.inconsistent[pairs_all[:, 0]]
+                                           | result.inconsistent[pairs_all[:, 1]]))
+    if rows.size == 0:
+        return _empty(result, settings)
+    pairs = pairs_all[rows]
+    tasks, task_of_pair = _tasks(pairs, settings, scans.scan_count)
+    registrations = (register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
+                                      registration) if cache is None
+                     else cache.register(scans, tasks, registration))
+    task_transforms = registrations.world_transforms()
+    transforms = task_transforms[task_of_pair]
+    passes = _corrected_pairs_pass(scans, result, pairs, transforms)
+    moments = PointMoments.of(scans)
+    displacement = moments.displacement(transforms, pairs[:, 1])
+    codes = _classify(registrations, task_of_pair, passes, displacement, settings)
+    candidates = np.unique(task_of_pair[codes == _CLASS_CODE[MISALIGNED]])
+    unconfirmed = np.ones(len(tasks), dtype=bool)
+    unconfirmed[candidates] = ~corrections_confirmed(scans, result, tasks[candidates],
+                                                     task_transforms[candidates], settings)
+    # a correction that breaks as much as it mends explains nothing: the failure is a change
+    codes[(codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]] = _CLASS_CODE[CHANGE]
+    misaligned = codes == _CLASS_CODE[MISALIGNED]
+    unexplained = (codes == _CLASS_CODE[CHANGE]) | (codes == _CLASS_CODE[UNREGISTERED])
+    # Changes are local: a scan most of whose overlaps fail beyond any small correction sees
+    # a gross error, which must never pass as a change.
+    gross = _cascaded(result, pairs, unexplained, settings.gross_fraction)
+    # A correction beyond any plausible local one that still leaves the pair failing is no
+    # change either: a stretch displaced further than registration reaches.
+    beyond = codes == _CLASS_CODE[UNREGISTERED]
+    flagged = _cascaded(result, pairs, misaligned | beyond) | gross
+    bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
+    regions = _regions(scans, result, rows, moments, bad, codes, transforms,
+                       registrations.covariances[task_of_pair], task_of_pair, flagged, settings)
+    # The tolerance is the map's: a region fails it by the displacement of its own correction,
+    # however far the single registrations behind it strayed.
+    within = [region.registered and region.displacement <= settings.misalignment_tolerance
+              for region in regions]
+    minor = tuple(region for region, small in zip(regions, within) if small)
+    misalignments = tuple(region for region, small in zip(regions, within) if not small)
+    flagged = _region_scans(misalignments, scans.scan_count)
+    changes = _changes(scans, result, rows[codes == _CLASS_CODE[CHANGE]], settings)
+    return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
+                      pair_corrections=transforms, pair_displacements=displacement,
+                      misaligned_scans=flagged, misalignments=misalignments, changes=changes,
+                      local_distortion=_local_distortion(result), minor_misalignments=minor)
+
+
+def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,
+              settings: ExplanationSettings | None = None,
+              reference_scans: ScanSet | None = None,
+              progress: Progress | None = None) -> Assessment:
+    """Both stages on scans placed in the map: the paper's test, then the explanation."""
+    result = check_consistency(scans, parameters, reference_scans, progress)
+    return explain(scans, result, settings)
+
+
+def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int = 200,
+                         min_depth: float = 0.0) -> np.ndarray:
+    """End points (M, 2) inside the other scan's polygon in the pairs behind the verdict: the
+    misaligned and unregistered pairs of flagged scans (strict: every failed pair of flagged
+    scans), the `max_pairs` with the largest statistic. A point counts when it lies deeper
+    than `min_depth` times the pair's scale."""
+    result = assessment.result
+    if assessment.settings.strict:
+        return inconsistent_endpoints(scans, result, max_pairs, min_depth)
+    flagged = assessment.misaligned_scans
+    rows = assessment.explained_pairs
+    pairs = result.pairs[rows]
+    bad = np.isin(assessment.pair_classes, (_CLASS_CODE[MISALIGNED], _CLASS_CODE[UNREGISTERED]))
+    keep = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
+    chosen = rows[keep][np.argsort(-result.statistic[rows[keep]], kind='stable')[:max_pairs]]
+    return pair_endpoints(scans, result, chosen, min_depth)[0]

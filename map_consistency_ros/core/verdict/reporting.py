@@ -1,0 +1,96 @@
+"""The machine-readable report of a verdict: the one format that the CLI's JSON files and the
+node's ~/report share, and the one place it becomes text (`to_json`): strict JSON, which jq,
+JavaScript and Go parse, with null where a value does not exist (no NaN, no Infinity)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from map_consistency_ros.core.consistency import ConsistencyResult
+from map_consistency_ros.core.verdict.explanation import Assessment
+
+
+def scan_names(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:
+    """How the report names the scans: `scan_ids` (record positions, stamps), else indices."""
+    return np.arange(result.scan_count) if scan_ids is None else np.asarray(scan_ids)
+
+
+def result_report(result: ConsistencyResult, scan_ids: np.ndarray | None = None) -> dict:
+    """The verdict, the figures and the per-scan decisions of a consistency result.
+
+    `scan_ids` name the scans in the input (record positions) where the test ran on a subset.
+    """
+    ids = scan_names(result, scan_ids)
+    return {
+        'verdict': 'consistent' if result.consistent else 'inconsistent',
+        'summary': result.summary(),
+        'parameters': result.parameters.as_dict(),
+        'inconsistent_scans': ids[result.inconsistent_scans],
+        'scans': {
+            'id': ids,
+            'scale': result.scales,
+            'tested_pairs': result.overlap_counts,
+            'failed_pairs': result.failed_counts,
+            'critical_count': result.critical_counts,
+        },
+    }
+
+
+def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None) -> dict:
+    """Both stages: the verdict, each misaligned region and each changed place, on top of the
+    paper's test (result_report). The node's ~/report and the CLI's JSON share it."""
+    ids = scan_names(assessment.result, scan_ids)
+    content = result_report(assessment.result, scan_ids)
+    content.update({
+        'verdict': 'consistent' if assessment.consistent else 'inconsistent',
+        'summary_line': assessment.summary_line(),
+        'paper_verdict': 'consistent' if assessment.result.consistent else 'inconsistent',
+        'explanation': assessment.settings.as_dict(),
+        'explained_pairs': assessment.class_counts(),
+        'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
+        'local_distortion_m': assessment.local_distortion,
+        'distorted': assessment.distorted,
+        'misalignments': [_region(region, ids) for region in assessment.misalignments],
+        'minor_misalignments': [_region(region, ids)
+                                for region in assessment.minor_misalignments],
+        'changes': [{'scans': ids[place.scans], 'x': place.x, 'y': place.y,
+                     'points': place.points} for place in assessment.changes],
+    })
+    return content
+
+
+def _region(region, ids: np.ndarray) -> dict:
+    return {
+        'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
+        'dx_m': region.correction[0], 'dy_m': region.correction[1],
+        'dtheta_deg': np.degrees(region.correction[2]),
+        'std_dx_m': region.correction_std[0], 'std_dy_m': region.correction_std[1],
+        'std_dtheta_deg': np.degrees(region.correction_std[2]),
+        'displacement_m': region.displacement, 'pairs': region.pairs,
+        'registered': region.registered,
+    }
+
+
+def plain(value):
+    """`value` with numpy arrays and scalars as lists and numbers, non-finite floats as None."""
+    if isinstance(value, dict):
+        return {str(key): plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return plain(value.tolist())
+    if isinstance(value, np.generic):  # np.float64 NaN is a float NaN after item()
+        return plain(value.item())
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def to_json(report, indent: int | None = None) -> str:
+    """`report` as strict JSON text: `plain` values, and a ValueError rather than a NaN or an
+    Infinity that slipped past it (no JSON parser but Python's would read the report)."""
+    return json.dumps(plain(report), indent=indent, allow_nan=False)
