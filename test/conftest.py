@@ -104,6 +104,29 @@ def slam_toolbox_stream(shared_data):
                            final=moved, truth=truth, loop=loop)
 
 
+def write_graph_bag(path, stream, messages_until=None):
+    """The stream's messages as a bag recorded beside slam_toolbox (log time = publication)."""
+    import numpy as np
+
+    from map_consistency_ros.io.bags import BagTopics, BagWriter
+
+    with BagWriter(path, topics=BagTopics(poses='/slam_toolbox/new_node_event')) as writer:
+        for time, kind, payload in stream.messages[:messages_until]:
+            if kind == 'scan':
+                writer.write_scan(time, float(stream.stamps[payload]), stream.ranges[payload],
+                                  stream.model)
+            elif kind == 'node':
+                writer.write_new_node_event(time, payload, float(stream.stamps[payload]),
+                                            stream.poses[payload])
+            elif kind == 'loop_closure':
+                writer.write_loop_closure_event(time, payload)
+            else:
+                stamp, ids, poses = payload
+                writer.write_pose_graph(time, stamp, ids, poses,
+                                        edges=np.column_stack([ids[:-1], ids[1:]]))
+    return path
+
+
 def pose_graph_stream(stream, first_seen, final):
     """What slam_toolbox with its pose-graph interface (pull request 818) publishes while
     mapping the scans of `stream` (slam_toolbox_stream), in publication order.

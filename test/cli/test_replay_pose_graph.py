@@ -6,26 +6,8 @@ import pytest
 from map_consistency_ros.cli.main import main
 from map_consistency_ros.core.records import NodeEvent, PoseGraphNodes
 from map_consistency_ros.io import messages
-from map_consistency_ros.io.bags import BagReader, BagTopics, BagWriter
-
-
-def write_graph_bag(path, stream, messages_until=None):
-    """The stream's messages as a bag recorded beside slam_toolbox (log time = publication)."""
-    with BagWriter(path, topics=BagTopics(poses='/slam_toolbox/new_node_event')) as writer:
-        for time, kind, payload in stream.messages[:messages_until]:
-            if kind == 'scan':
-                writer.write_scan(time, float(stream.stamps[payload]), stream.ranges[payload],
-                                  stream.model)
-            elif kind == 'node':
-                writer.write_new_node_event(time, payload, float(stream.stamps[payload]),
-                                            stream.poses[payload])
-            elif kind == 'loop_closure':
-                writer.write_loop_closure_event(time, payload)
-            else:
-                stamp, ids, poses = payload
-                writer.write_pose_graph(time, stamp, ids, poses,
-                                        edges=np.column_stack([ids[:-1], ids[1:]]))
-    return path
+from map_consistency_ros.io.bags import BagReader
+from test.conftest import write_graph_bag
 
 
 def write_carmen(path, stamps, ranges, poses):
