@@ -103,17 +103,24 @@ def test_live_path_gives_the_verdict_of_replay(slam_toolbox_graph_stream, tmp_pa
         time.sleep(1.0)
         # the bag's messages in its order: scans over DDS, the rest to the callbacks the node
         # registered. slam_toolbox sends a node after taking its scan; across a loop closure
-        # the node must have taken the scans before (acknowledged, then taken from its queue),
-        # as in the bag: a scan taken after the graph would get its first-seen pose from the
-        # moved graph, another incremental solution (docs/node.md)
+        # the node must have applied the scans before, as replay of the bag does: a scan taken
+        # after the graph would get its first-seen pose from the moved graph, another
+        # incremental solution (docs/node.md). The feed's newest scan says so (read from this
+        # thread: a float the worker replaces).
+        last_scan = -1.0
         with BagReader([bag]) as reader:
-            for topic, msgtype, _, data in reader.raw_messages(reader.input_topics):
+            for topic, msgtype, log_time, data in reader.raw_messages(reader.input_topics):
                 if msgtype == messages.SCAN_TYPE:
                     scans.publish(data)
+                    last_scan = log_time  # write_graph_bag logs a scan at its stamp
                     continue
                 if msgtype != messages.NEW_NODE_EVENT_TYPE:
                     scans.wait_for_all_acked(Duration(seconds=5))
-                    time.sleep(0.3)
+                    deadline = time.monotonic() + 60.0
+                    while (node._feed.newest_scan < last_scan - 1e-6
+                           and time.monotonic() < deadline):
+                        time.sleep(0.02)
+                    assert node._feed.newest_scan >= last_scan - 1e-6
                 callback, raw = callbacks[msgtype]
                 callback(data if raw else reader._deserialize(data, msgtype))
         code = main(['replay', str(bag), '--quiet', '--report', str(tmp_path / 'r.json')])
