@@ -156,3 +156,87 @@ def slam_toolbox_stream(shared_data):
     return SimpleNamespace(stamps=log.timestamps[:scans][order], ranges=log.ranges[:scans][order],
                            model=sensor_model(log), poses=poses, snapshots=snapshots,
                            final=moved, truth=truth, loop=loop)
+
+
+def write_graph_bag(path, stream, messages_until=None):
+    """The stream's messages as a bag recorded beside slam_toolbox (log time = publication)."""
+    import numpy as np
+
+    from map_consistency_ros.io.bags import BagTopics, BagWriter
+
+    with BagWriter(path, topics=BagTopics(poses='/slam_toolbox/new_node_event')) as writer:
+        for time, kind, payload in stream.messages[:messages_until]:
+            if kind == 'scan':
+                writer.write_scan(time, float(stream.stamps[payload]), stream.ranges[payload],
+                                  stream.model)
+            elif kind == 'node':
+                writer.write_new_node_event(time, payload, float(stream.stamps[payload]),
+                                            stream.poses[payload])
+            elif kind == 'loop_closure':
+                writer.write_loop_closure_event(time, payload)
+            else:
+                stamp, ids, poses = payload
+                writer.write_pose_graph(time, stamp, ids, poses,
+                                        edges=np.column_stack([ids[:-1], ids[1:]]))
+    return path
+
+
+def pose_graph_stream(stream, first_seen, final):
+    """What slam_toolbox with its pose-graph interface (pull request 818) publishes while
+    mapping the scans of `stream` (slam_toolbox_stream), in publication order.
+
+    Every scan becomes node `index` with a NewNodeEvent (its scan's stamp, its pose then:
+    `first_seen` before the loop closure at scan stream.loop, `final` from it on); the loop
+    closure sends a LoopClosureEvent before that scan's node event (slam_toolbox fires it
+    inside the mapper, before publishing the node); the PoseGraph it requests comes at the
+    next tick of the visualisation loop, after scan GRAPH_AFTER, holding nodes 0..GRAPH_AFTER at
+    their `final` poses, headings included. Returns a namespace: the stream's stamps, ranges,
+    model, poses (every node event's pose), final, and messages [(log time, kind, payload)]
+    with kind 'scan' (index), 'node' (index), 'loop_closure' (stamp) or 'graph' ((stamp, ids,
+    poses)).
+    """
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    count, loop = len(stream.stamps), stream.loop
+    graph_after = loop + 4
+    poses = np.where((np.arange(count) >= loop)[:, None], final, first_seen)
+    messages = []
+    for index in range(count):
+        stamp = float(stream.stamps[index])
+        messages.append((stamp, 'scan', index))
+        if index == loop:
+            messages.append((stamp + 1e-4, 'loop_closure', stamp + 1e-4))
+        messages.append((stamp + 2e-4, 'node', index))
+        if index == graph_after:
+            ids = np.arange(graph_after + 1)
+            messages.append((stamp + 3e-4, 'graph', (stamp + 3e-4, ids,
+                                                     final[:graph_after + 1].copy())))
+    return SimpleNamespace(stamps=stream.stamps, ranges=stream.ranges, model=stream.model,
+                           poses=poses, final=final, loop=loop, graph_after=graph_after,
+                           messages=messages)
+
+
+@pytest.fixture(scope='session')
+def slam_toolbox_graph_stream(slam_toolbox_stream):
+    """pose_graph_stream of slam_toolbox_stream's wrong loop closure: nodes PIVOT.. move
+    rigidly (0.1 rad and a shift), the map turns inconsistent."""
+    stream = slam_toolbox_stream
+    return pose_graph_stream(stream, stream.truth, stream.final)
+
+
+@pytest.fixture(scope='session')
+def rotated_graph_stream(slam_toolbox_stream):
+    """pose_graph_stream of a loop closure that turns the whole graph by 0.3 rad about its
+    first node and shifts it (every node moves, every heading changes): node events before it
+    carry the poses before, the graph and later events the turned ones."""
+    import numpy as np
+
+    from map_consistency_ros.core.geometry import se2
+
+    stream = slam_toolbox_stream
+    motion = np.array([0.4, -0.7, 0.3])
+    turned = se2.compose(se2.compose(stream.truth[0], motion),
+                         se2.relative(stream.truth[0], stream.truth))
+    return pose_graph_stream(stream, stream.truth, turned)

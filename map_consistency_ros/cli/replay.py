@@ -18,6 +18,11 @@ Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic)
                              its graph markers (MarkerArray on --graph-topic): when the bag has
                              both, the poses and markers go to the slam_toolbox bridge, as in the
                              node with pose_source slam_toolbox (docs/slam_bridges.md).
+  slam_toolbox_graph         its node events (slam_toolbox/msg/NewNodeEvent on --new-node-topic,
+                             chosen by default when the bag has them), pose graph (PoseGraph on
+                             --pose-graph-topic) and loop-closure events (--loop-closure-topic):
+                             keyframes with full headings, as in the node with pose_source
+                             slam_toolbox_graph (docs/slam_bridges.md).
 std_msgs/Float64MultiArray on /constraints (optional) is passed on as the pose-graph edges.
 
 --publish plays the bag's scan, pose and constraints topics onto live ROS 2 topics instead
@@ -44,13 +49,15 @@ from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet
 from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
-                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
-                                           MonitorSnapshot, PoseSample, Scan)
+                                           KeyframeEstimate, LoopClosure, MonitorFeed,
+                                           MonitorSettings, MonitorSnapshot, NodeEvent,
+                                           PoseGraphCounts, PoseGraphNodes, PoseSample, Scan)
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
 from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
-from map_consistency_ros.io.messages import PATH_TYPE, POSE_SOURCE_TYPES, time_message
+from map_consistency_ros.io.messages import (NEW_NODE_EVENT_TYPE, PATH_TYPE, POSE_SOURCE_TYPES,
+                                             time_message)
 from map_consistency_ros.io.parameter_file import read_parameter_file
 
 EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
@@ -101,6 +108,15 @@ def add_topic_arguments(parser: argparse.ArgumentParser) -> None:
                         help="slam_toolbox's graph markers (MarkerArray), optional: with a "
                              'PoseWithCovarianceStamped pose topic the poses and markers go to '
                              'the slam_toolbox bridge (%(default)s)')
+    topics.add_argument('--new-node-topic', default=BagTopics.new_node_event,
+                        help="slam_toolbox's node events (NewNodeEvent): the pose topic by "
+                             'default when the bag has it; with it, the pose graph and '
+                             'loop-closure events go to the pose-graph bridge (%(default)s)')
+    topics.add_argument('--pose-graph-topic', default=BagTopics.pose_graph,
+                        help="slam_toolbox's pose graph (PoseGraph), optional (%(default)s)")
+    topics.add_argument('--loop-closure-topic', default=BagTopics.loop_closure_event,
+                        help="slam_toolbox's loop-closure events (LoopClosureEvent), optional "
+                             '(%(default)s)')
 
 
 @dataclass
@@ -112,6 +128,9 @@ class ReplayStats:
     pose_messages: int = 0
     constraint_sets: int = 0
     graph_snapshots: int = 0
+    node_events: int = 0
+    pose_graphs: int = 0
+    loop_closures: int = 0
     warnings: list[str] = field(default_factory=list)
     seconds: float = 0.0  # wall-clock time of the replay
     log_seconds: float = 0.0  # bag time replayed
@@ -171,6 +190,12 @@ class Replay:
             stats.pose_messages += 1
         elif isinstance(record, GraphSnapshot):
             stats.graph_snapshots += 1
+        elif isinstance(record, NodeEvent):
+            stats.node_events += 1
+        elif isinstance(record, PoseGraphNodes):
+            stats.pose_graphs += 1
+        elif isinstance(record, LoopClosure):
+            stats.loop_closures += 1
         else:
             stats.constraint_sets += 1
 
@@ -181,6 +206,16 @@ def _laser_offset(bag: BagReader, values: dict) -> tuple[np.ndarray, str]:
         return np.asarray(values['laser_offset'], dtype=np.float64), 'parameter'
     if bag.pose_type == PATH_TYPE:
         return np.zeros(3), 'none (Path poses are laser poses)'
+    if bag.pose_type == NEW_NODE_EVENT_TYPE:
+        # node poses are of slam_toolbox's base_frame, which its events do not name: its
+        # default, then the usual name
+        scan_frame = next((record.frame_id for _, record in bag.records()
+                           if isinstance(record, Scan)), None)
+        for child in ('base_footprint', 'base_link'):
+            offset = None if scan_frame is None else bag.static_transform(child, scan_frame)
+            if offset is not None:
+                return offset, f'/tf_static {child} -> {scan_frame}'
+        return np.zeros(3), 'none found in /tf_static'
     frames = _first_frames(bag)
     if frames is not None:
         offset = bag.static_transform(*frames)
@@ -212,7 +247,7 @@ def parameter_values(args: argparse.Namespace, base: dict | None = None) -> dict
             print(f'map-consistency replay: {args.params_file}: {warning}', file=sys.stderr)
     values = options.parameter_values(args, base)
     for name in ('bags', 'scan_topic', 'pose_topic', 'constraints_topic', 'graph_topic',
-                 'params_file'):
+                 'new_node_topic', 'pose_graph_topic', 'loop_closure_topic', 'params_file'):
         values.pop(name, None)  # options, not parameters
     return values
 
@@ -232,7 +267,9 @@ def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
     except ValueError as error:
         raise InputError('parameters', str(error)) from None
     topics = BagTopics(scan=args.scan_topic, poses=args.pose_topic,
-                       constraints=args.constraints_topic, graph=args.graph_topic)
+                       constraints=args.constraints_topic, graph=args.graph_topic,
+                       pose_graph=args.pose_graph_topic, new_node_event=args.new_node_topic,
+                       loop_closure_event=args.loop_closure_topic)
     return BagReader(args.bags, topics, max_range=max_range)
 
 
@@ -277,7 +314,9 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
         'source': bag.source,
         'topics': {'scan': bag.topics.scan, 'poses': bag.pose_topic, 'pose_type': bag.pose_type,
                    'constraints': bag.topics.constraints if bag.has_constraints else None,
-                   'graph': bag.topics.graph if bag.has_graph else None},
+                   'graph': bag.topics.graph if bag.has_graph else None,
+                   'pose_graph': (bag.topics.pose_graph if bag.has_pose_graph
+                                  and bag.topics.pose_graph in bag.input_topics else None)},
         'laser_offset': offset, 'laser_offset_source': offset_source,
         'bag_duration_seconds': bag.duration,
         'replay': {'scan_messages': replay.stats.scans,
@@ -285,6 +324,9 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
                    'pose_messages': replay.stats.pose_messages,
                    'constraint_sets': replay.stats.constraint_sets,
                    'graph_snapshots': replay.stats.graph_snapshots,
+                   'node_events': replay.stats.node_events,
+                   'pose_graphs': replay.stats.pose_graphs,
+                   'loop_closures': replay.stats.loop_closures,
                    'constraint_rows': int(monitor.constraints.shape[0]),
                    'keyframes': snapshot.keyframe_count,
                    'folded_keyframes': snapshot.folded_scans,
@@ -326,7 +368,13 @@ def _summary(assessment: Assessment, replay: Replay, bag: BagReader) -> str:
              f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
              f'{stats.realtime_rate:.1f} scans/s']
     counts = replay.feed.bridge_counts
-    if counts is not None:
+    if isinstance(counts, PoseGraphCounts):
+        lines.append(f'  slam_toolbox graph    {stats.node_events} node events, '
+                     f'{stats.pose_graphs} pose graphs, {stats.loop_closures} loop closures: '
+                     f'{counts.keyframes} keyframes, {counts.nodes_without_stamp} nodes '
+                     'without an event' + (', waiting for the graph of a loop closure'
+                                           if counts.waiting_for_graph else ''))
+    elif counts is not None:
         lines.append(f'  slam_toolbox bridge   {stats.pose_messages} poses, '
                      f'{stats.graph_snapshots} graph snapshots: {counts.keyframes} keyframes, '
                      f'{counts.interpolated} headings interpolated, '
@@ -374,8 +422,13 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
         publishers = {}
         for topic in topics:
             msgtype = bag.topic_type(topic)
-            publishers[topic] = node.create_publisher(message_class(msgtype), topic,
-                                                      _PUBLISH_DEPTH)
+            try:
+                kind = message_class(msgtype)
+            except ImportError:
+                raise InputError('--publish', f'{topic} carries {msgtype}, whose ROS 2 message '
+                                              f'package {msgtype.split("/")[0]} is not '
+                                              'installed') from None
+            publishers[topic] = node.create_publisher(kind, topic, _PUBLISH_DEPTH)
         clock = node.create_publisher(Clock, '/clock', 10)
         deadline = time.monotonic() + discovery_timeout
         while (not all(publisher.get_subscription_count() >= subscribers

@@ -23,15 +23,21 @@ import numpy as np
 from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
-from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE,
-                                             PATH_TYPE, POSE_COVARIANCE_TYPE, POSE_TYPES,
+from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE,
+                                             LOOP_CLOSURE_EVENT_TYPE, MARKER_ARRAY_TYPE,
+                                             NEW_NODE_EVENT_TYPE, PATH_TYPE,
+                                             POSE_COVARIANCE_TYPE, POSE_GRAPH_TYPE, POSE_TYPES,
                                              SCAN_TYPE, constraints_message,
-                                             graph_markers_message, path_message,
-                                             record_from_cdr, scan_message, single_pose_message,
-                                             to_record)
+                                             graph_markers_message, loop_closure_event_message,
+                                             new_node_event_message, path_message,
+                                             pose_graph_message, record_from_cdr,
+                                             register_slam_toolbox_types, scan_message,
+                                             single_pose_message, to_record)
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 STORAGES = ('mcap', 'sqlite3')
+# A pose topic replay reads: keyframe Paths, single poses, or slam_toolbox's node events.
+POSE_TOPIC_TYPES = POSE_TYPES + (NEW_NODE_EVENT_TYPE,)
 
 
 @dataclass(frozen=True)
@@ -48,13 +54,18 @@ BagRecord = Record | BadMessage
 
 @dataclass(frozen=True)
 class BagTopics:
-    """Topic names. `poses=None` picks '/trajectory', else the bag's only pose topic. `graph`
-    is slam_toolbox's graph markers (its node publishes `slam_toolbox/graph_visualization`)."""
+    """Topic names. `poses=None` picks '/trajectory', else slam_toolbox's node events
+    (`new_node_event`) when the bag has them, else the bag's only pose topic. `graph` is
+    slam_toolbox's graph markers (its node publishes `slam_toolbox/graph_visualization`);
+    `pose_graph` and `loop_closure_event` its pose-graph interface, read beside node events."""
 
     scan: str = '/scan'
     poses: str | None = None
     constraints: str = '/constraints'
     graph: str = '/slam_toolbox/graph_visualization'
+    pose_graph: str = '/slam_toolbox/pose_graph'
+    new_node_event: str = '/slam_toolbox/new_node_event'
+    loop_closure_event: str = '/slam_toolbox/loop_closure_event'
 
 
 # Errors rosbags and the decompressors raise on damaged files (MemoryError: a garbage length
@@ -100,7 +111,9 @@ class BagReader:
             if not path.exists():
                 raise InputError(str(path), 'no such bag')
         try:
-            reader = AnyReader(self.paths, default_typestore=get_typestore(Stores.ROS2_JAZZY))
+            typestore = get_typestore(Stores.ROS2_JAZZY)
+            register_slam_toolbox_types(typestore)  # for bags without their definitions
+            reader = AnyReader(self.paths, default_typestore=typestore)
             reader.open()
         except _bag_errors() as error:
             raise InputError(self.source, f'not a readable ROS bag ({_describe(error)})') from None
@@ -141,16 +154,25 @@ class BagReader:
             self._connections.setdefault(connection.topic, []).append(connection)
         self._require(self.topics.scan, (SCAN_TYPE,), '--scan-topic')
         self.pose_topic = self.topics.poses or self._default_pose_topic()
-        self.pose_type = self._require(self.pose_topic, POSE_TYPES, '--pose-topic')
+        self.pose_type = self._require(self.pose_topic, POSE_TOPIC_TYPES, '--pose-topic')
         if self.topics.constraints in self._connections:
             self._require(self.topics.constraints, (CONSTRAINTS_TYPE,), '--constraints-topic')
         if self.topics.graph in self._connections:
             self._require(self.topics.graph, (MARKER_ARRAY_TYPE,), '--graph-topic')
+        if self.has_pose_graph:
+            for topic, msgtype, option in (
+                    (self.topics.pose_graph, POSE_GRAPH_TYPE, '--pose-graph-topic'),
+                    (self.topics.loop_closure_event, LOOP_CLOSURE_EVENT_TYPE,
+                     '--loop-closure-topic')):
+                if topic in self._connections:
+                    self._require(topic, (msgtype,), option)
 
     def _default_pose_topic(self) -> str:
         types = self._topic_types()
         if '/trajectory' in types:
             return '/trajectory'
+        if types.get(self.topics.new_node_event) == NEW_NODE_EVENT_TYPE:
+            return self.topics.new_node_event
         candidates = sorted(topic for topic, msgtype in types.items() if msgtype in POSE_TYPES)
         if len(candidates) != 1:
             found = ', '.join(candidates) if candidates else 'none'
@@ -174,13 +196,24 @@ class BagReader:
                 and self.pose_type == POSE_COVARIANCE_TYPE)
 
     @property
+    def has_pose_graph(self) -> bool:
+        """Whether the poses are slam_toolbox's node events: then its pose graph and
+        loop-closure events, when the bag has them, go to the pose-graph bridge too."""
+        return self.pose_type == NEW_NODE_EVENT_TYPE
+
+    @property
     def input_topics(self) -> list[str]:
-        """The topics replay reads: scan, poses, and constraints and graph when present."""
+        """The topics replay reads: scan, poses, and constraints and graph (markers, or pose
+        graph and loop-closure events) when present."""
         topics = [self.topics.scan, self.pose_topic]
         if self.has_constraints:
             topics.append(self.topics.constraints)
         if self.has_graph:
             topics.append(self.topics.graph)
+        if self.has_pose_graph:
+            topics += [topic for topic in (self.topics.pose_graph,
+                                           self.topics.loop_closure_event)
+                       if topic in self._connections]
         return topics
 
     @property
@@ -316,6 +349,7 @@ class BagWriter:
         if self.path.exists():
             raise InputError(str(self.path), 'output already exists; remove it or choose another')
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        register_slam_toolbox_types(self.typestore)
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
         writer = Writer(self.path, version=9, storage_plugin=plugin)
         if self.compress:
@@ -337,7 +371,11 @@ class BagWriter:
         if msgtype not in self._connections:
             # the pose topic carries the first pose type; the graph topic appears only in bags
             # written with graph markers, since replay takes its presence as slam_toolbox input
-            topic = self.topics.graph if msgtype == MARKER_ARRAY_TYPE else self.topics.poses
+            topic = {MARKER_ARRAY_TYPE: self.topics.graph,
+                     NEW_NODE_EVENT_TYPE: self.topics.new_node_event,
+                     POSE_GRAPH_TYPE: self.topics.pose_graph,
+                     LOOP_CLOSURE_EVENT_TYPE: self.topics.loop_closure_event}.get(
+                         msgtype, self.topics.poses)
             self._connections[msgtype] = self._writer.add_connection(
                 topic, msgtype, typestore=self.typestore)
         data = self.typestore.serialize_cdr(message, msgtype)
@@ -374,3 +412,20 @@ class BagWriter:
         (V, 2), the edges, on the graph topic."""
         self._write(MARKER_ARRAY_TYPE, time, graph_markers_message(self._types, time, ids,
                                                                    positions, frame_id))
+
+    def write_new_node_event(self, time: float, node_id: int, stamp: float, pose: np.ndarray,
+                             step: np.ndarray | None = None) -> None:
+        """slam_toolbox's NewNodeEvent of node `node_id` built from the scan stamped `stamp`."""
+        self._write(NEW_NODE_EVENT_TYPE, time, new_node_event_message(self._types, node_id,
+                                                                      stamp, pose, step))
+
+    def write_pose_graph(self, time: float, stamp: float, ids: np.ndarray, poses: np.ndarray,
+                         frame_id: str = 'map', edges: np.ndarray | None = None) -> None:
+        """slam_toolbox's PoseGraph: node ids (V,) at poses (V, 3), header stamp `stamp`."""
+        self._write(POSE_GRAPH_TYPE, time, pose_graph_message(self._types, stamp, ids, poses,
+                                                              frame_id, edges))
+
+    def write_loop_closure_event(self, time: float, stamp: float) -> None:
+        """slam_toolbox's LoopClosureEvent."""
+        self._write(LOOP_CLOSURE_EVENT_TYPE, time, loop_closure_event_message(self._types,
+                                                                              stamp))

@@ -20,7 +20,8 @@ import numpy as np
 from map_consistency_ros.core.backend import CONSTRAINT_FIELDS, CONSTRAINT_WIDTH
 from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.core.live import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                           PoseSample, Record, Scan)
+                                           LoopClosure, NodeEvent, PoseGraphNodes, PoseSample,
+                                           Record, Scan)
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 PATH_TYPE = 'nav_msgs/msg/Path'
@@ -29,12 +30,20 @@ POSE_STAMPED_TYPE = 'geometry_msgs/msg/PoseStamped'
 POSE_COVARIANCE_TYPE = 'geometry_msgs/msg/PoseWithCovarianceStamped'
 CONSTRAINTS_TYPE = 'std_msgs/msg/Float64MultiArray'
 MARKER_ARRAY_TYPE = 'visualization_msgs/msg/MarkerArray'
+# slam_toolbox's pose-graph interface (pull request 818, docs/slam_bridges.md); the field lists
+# ship in io/msg/slam_toolbox/ for bags (register_slam_toolbox_types).
+POSE_GRAPH_TYPE = 'slam_toolbox/msg/PoseGraph'
+NEW_NODE_EVENT_TYPE = 'slam_toolbox/msg/NewNodeEvent'
+LOOP_CLOSURE_EVENT_TYPE = 'slam_toolbox/msg/LoopClosureEvent'
+SLAM_TOOLBOX_GRAPH_TYPES = (NEW_NODE_EVENT_TYPE, POSE_GRAPH_TYPE, LOOP_CLOSURE_EVENT_TYPE)
 SINGLE_POSE_TYPES = (ODOMETRY_TYPE, POSE_STAMPED_TYPE, POSE_COVARIANCE_TYPE)
 POSE_TYPES = (PATH_TYPE,) + SINGLE_POSE_TYPES
-# The node's pose_source parameter -> message type of its pose topic.
+# The node's pose_source parameter -> message type of its pose topic (slam_toolbox_graph: the
+# node events, which name the scans; its graph and loop closures come beside them).
 POSE_SOURCE_TYPES = {'path': PATH_TYPE, 'odometry': ODOMETRY_TYPE, 'pose': POSE_STAMPED_TYPE,
                      'pose_with_covariance': POSE_COVARIANCE_TYPE,
-                     'slam_toolbox': POSE_COVARIANCE_TYPE}
+                     'slam_toolbox': POSE_COVARIANCE_TYPE,
+                     'slam_toolbox_graph': NEW_NODE_EVENT_TYPE}
 # slam_toolbox's graph_visualization (src/loop_closure_assistant.cpp, publishGraph): one SPHERE
 # per vertex in this namespace, marker id = vertex id; edges in other namespaces.
 SLAM_TOOLBOX_NAMESPACE = 'slam_toolbox'
@@ -259,11 +268,59 @@ def _graph_vertices(markers) -> tuple[np.ndarray, np.ndarray, str]:
     return ids, positions, frame_id
 
 
+def pose_graph_to_numpy(msg) -> tuple[np.ndarray, np.ndarray]:
+    """(node ids (V,), poses (V, 3) x, y, yaw) of a slam_toolbox PoseGraph; its edges are not
+    read (the monitor takes constraints in its own row format). Raises ValueError for repeated
+    ids and non-finite values (see _graph_nodes)."""
+    count = len(msg.nodes)
+    ids = np.empty(count, dtype=np.int64)
+    values = np.empty((count, 7))
+    for index, node in enumerate(msg.nodes):
+        position, orientation = node.pose.position, node.pose.orientation
+        ids[index] = node.node_id
+        values[index] = (position.x, position.y, position.z, orientation.x, orientation.y,
+                         orientation.z, orientation.w)
+    return _graph_nodes(ids, values)
+
+
+def _graph_nodes(ids: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ids, poses (V, 3)) of node ids and their Pose values (V, 7: position, quaternion).
+
+    A repeated id (slam_toolbox's ids are unique over all lasers), a negative one, a non-finite
+    position or an unusable quaternion would misplace or lose a node silently: ValueError."""
+    ids = np.asarray(ids, dtype=np.int64)
+    unique, counts = np.unique(ids, return_counts=True)
+    if np.any(counts > 1):
+        raise ValueError(f'pose graph node ids {unique[counts > 1][:5].tolist()} appear more '
+                         'than once')
+    if np.any(ids < 0):
+        raise ValueError('pose graph node ids must not be negative, got '
+                         f'{ids[ids < 0][:5].tolist()}')
+    yaw = se2.yaw_from_quaternion(*values[:, 3:].T)
+    poses = np.column_stack([values[:, :2], yaw])
+    bad = ~np.all(np.isfinite(poses), axis=1)
+    if np.any(bad):
+        raise ValueError(f'pose graph nodes {ids[bad][:5].tolist()} have non-finite positions or '
+                         'unusable orientations')
+    return ids, poses
+
+
+def new_node_event_to_record(msg) -> NodeEvent:
+    """The record of a slam_toolbox NewNodeEvent; ValueError for a negative id or a
+    non-finite pose."""
+    pose = pose_to_numpy(msg.pose)
+    if msg.new_node_id < 0 or not np.all(np.isfinite(pose)):
+        raise ValueError(f'new node event {msg.new_node_id}: negative id or non-finite pose '
+                         f'{pose.tolist()}')
+    return NodeEvent(node_id=int(msg.new_node_id), stamp=stamp_to_seconds(msg.stamp), pose=pose)
+
+
 class _CdrReader:
     """Reads CDR (little endian, XCDR1) fields in order; IndexError past the end."""
 
     _THREE_INT32 = struct.Struct('<3i')
     _FLOAT64_PAIR = struct.Struct('<2d')
+    _STAMP = struct.Struct('<iI')
 
     def __init__(self, body: memoryview) -> None:
         self.body, self.offset = body, 0
@@ -274,6 +331,10 @@ class _CdrReader:
             raise IndexError('CDR message shorter than its fields')
         self.offset = start + size
         return start
+
+    def stamp(self) -> tuple[int, int]:
+        """builtin_interfaces/Time: (sec, nanosec)."""
+        return self._STAMP.unpack_from(self.body, self._at(8, 4))
 
     def uint32(self) -> int:
         return int.from_bytes(self.body[self._at(4, 4):self.offset], 'little')
@@ -340,10 +401,47 @@ def _marker_fields(reader: _CdrReader) -> tuple:
     return namespace, marker_id, marker_type, action, x, y, frame_id
 
 
+def pose_graph_from_cdr(data: bytes) -> PoseGraphNodes | None:
+    """The record of a serialized slam_toolbox PoseGraph, its nodes read from the CDR bytes
+    with numpy (the edges after them are not read): a message object per node and edge costs
+    tens of microseconds each, all holding the interpreter, for a graph of thousands. None for
+    a layout this does not read (big endian, XCDR2); ValueError as pose_graph_to_numpy, and for
+    a message shorter than its node count says."""
+    if len(data) < _ENCAPSULATION + 16 or bytes(data[:2]) != _CDR_LE:
+        return None
+    body = memoryview(data)[_ENCAPSULATION:]
+    reader = _CdrReader(body)
+    try:
+        sec, nanosec = reader.stamp()
+        frame_id = reader.string()
+        count = reader.uint32()
+    except IndexError as error:
+        raise ValueError(f'pose graph: {error}') from None
+    first = reader.offset  # 4-aligned: a node is int32 node_id, then Pose's 7 float64
+    # the first node's values align to 8 from wherever it starts; every later node starts
+    # 8-aligned right after the previous one's values, so the later ones are evenly spaced
+    head = _align(first + 4, 8) - first
+    node = np.dtype({'names': ['node_id', 'values'], 'formats': ['<i4', ('<f8', _POSE_VALUES)],
+                     'offsets': [0, head], 'itemsize': head + 8 * _POSE_VALUES})
+    rest = np.dtype({'names': ['node_id', 'values'], 'formats': ['<i4', ('<f8', _POSE_VALUES)],
+                     'offsets': [0, 8], 'itemsize': 8 + 8 * _POSE_VALUES})
+    if count and first + node.itemsize + (count - 1) * rest.itemsize > len(body):
+        raise ValueError(f'pose graph: {count} nodes do not fit in {len(body)} bytes')
+    entries = ([np.frombuffer(body, dtype=node, count=1, offset=first),
+                np.frombuffer(body, dtype=rest, count=count - 1, offset=first + node.itemsize)]
+               if count else [])
+    ids = np.concatenate([entry['node_id'] for entry in entries]) if count else np.zeros(0)
+    values = (np.concatenate([entry['values'] for entry in entries]) if count
+              else np.zeros((0, _POSE_VALUES)))
+    ids, poses = _graph_nodes(ids, values)
+    return PoseGraphNodes(ids=ids, poses=poses, stamp=sec + nanosec * 1e-9, frame_id=frame_id)
+
+
 # Message types whose records are read straight from their CDR bytes, by the node and by bag
 # replay alike: type -> reader (None for a layout left to the deserializer).
 CDR_RECORDS: dict[str, Callable[[bytes], Record | None]] = {
-    PATH_TYPE: path_from_cdr, MARKER_ARRAY_TYPE: graph_markers_from_cdr}
+    PATH_TYPE: path_from_cdr, MARKER_ARRAY_TYPE: graph_markers_from_cdr,
+    POSE_GRAPH_TYPE: pose_graph_from_cdr}
 
 
 def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str], object],
@@ -357,7 +455,8 @@ def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str
 
 def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
     """The core record of one message of type `msgtype` (one of SCAN_TYPE, POSE_TYPES,
-    CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE); ValueError for unusable content."""
+    CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE, SLAM_TOOLBOX_GRAPH_TYPES); ValueError for unusable
+    content."""
     if msgtype == SCAN_TYPE:
         stamp, ranges, model = scan_to_numpy(msg, max_range)
         return Scan(stamp=stamp, ranges=ranges, model=model, frame_id=msg.header.frame_id)
@@ -370,6 +469,14 @@ def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
     if msgtype == MARKER_ARRAY_TYPE:
         ids, positions, frame_id = graph_markers_to_numpy(msg)
         return GraphSnapshot(ids=ids, positions=positions, frame_id=frame_id)
+    if msgtype == NEW_NODE_EVENT_TYPE:
+        return new_node_event_to_record(msg)
+    if msgtype == POSE_GRAPH_TYPE:
+        ids, poses = pose_graph_to_numpy(msg)
+        return PoseGraphNodes(ids=ids, poses=poses, stamp=stamp_to_seconds(msg.header.stamp),
+                              frame_id=msg.header.frame_id)
+    if msgtype == LOOP_CLOSURE_EVENT_TYPE:
+        return LoopClosure(stamp=stamp_to_seconds(msg.stamp))
     if msgtype in SINGLE_POSE_TYPES:
         pose = msg.pose if msgtype == POSE_STAMPED_TYPE else msg.pose.pose
         return PoseSample(stamp=stamp_to_seconds(msg.header.stamp), pose=pose_to_numpy(pose),
@@ -496,3 +603,68 @@ def graph_markers_message(types: MessageTypes, stamp: float, ids: np.ndarray,
     markers.append(_marker(types, header, 'slam_toolbox_edges', 0, MARKER_LINE_LIST, MARKER_ADD,
                            points=edges))
     return types(MARKER_ARRAY_TYPE)(markers=markers)
+
+
+def _graph_edge(types: MessageTypes, source: int, target: int, relative: np.ndarray,
+                covariance: np.ndarray):
+    return types('slam_toolbox/msg/GraphEdge')(
+        source_id=int(source), target_id=int(target), relative_pose=geometry_pose(types, relative),
+        covariance=np.asarray(covariance, dtype=np.float64).reshape(9))
+
+
+def new_node_event_message(types: MessageTypes, node_id: int, stamp: float, pose: np.ndarray,
+                           step: np.ndarray | None = None,
+                           covariance: np.ndarray | None = None):
+    """A NewNodeEvent as slam_toolbox's publishNewNodeEvent fills it: the node, the stamp of its
+    scan, its pose, and the edge from node `node_id - 1` (relative pose `step`; zeros for the
+    first node, whose event has no such edge)."""
+    step = np.zeros(3) if step is None else step
+    covariance = np.zeros(9) if covariance is None else covariance
+    source = node_id - 1 if node_id > 0 else 0
+    return types(NEW_NODE_EVENT_TYPE)(
+        new_node_id=int(node_id), stamp=time_message(types, stamp),
+        pose=geometry_pose(types, pose),
+        edge=_graph_edge(types, source, node_id if node_id > 0 else 0, step, covariance))
+
+
+def pose_graph_message(types: MessageTypes, stamp: float, ids: np.ndarray, poses: np.ndarray,
+                       frame_id: str = 'map', edges: np.ndarray | None = None):
+    """A PoseGraph of node ids (V,) at poses (V, 3), stamped `stamp` (slam_toolbox: its clock
+    when it built the message); `edges` (E, 2) node id pairs get the relative pose of their
+    nodes and an identity covariance."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    node = types('slam_toolbox/msg/GraphNode')
+    nodes = [node(node_id=int(node_id), pose=geometry_pose(types, pose))
+             for node_id, pose in zip(np.asarray(ids).tolist(), poses)]
+    index = {int(node_id): row for row, node_id in enumerate(np.asarray(ids).tolist())}
+    pairs = np.zeros((0, 2), dtype=np.int64) if edges is None else np.asarray(edges)
+    graph_edges = [_graph_edge(types, source, target,
+                               se2.relative(poses[index[int(source)]], poses[index[int(target)]]),
+                               np.eye(3)) for source, target in pairs.tolist()]
+    return types(POSE_GRAPH_TYPE)(header=header_message(types, stamp, frame_id), nodes=nodes,
+                                  edges=graph_edges)
+
+
+def loop_closure_event_message(types: MessageTypes, stamp: float):
+    """A LoopClosureEvent (only a stamp: slam_toolbox's clock at the end of the closure)."""
+    return types(LOOP_CLOSURE_EVENT_TYPE)(stamp=time_message(types, stamp))
+
+
+def slam_toolbox_definitions() -> dict[str, str]:
+    """slam_toolbox's pose-graph message definitions shipped with this package (io/msg/):
+    type name -> .msg text."""
+    from importlib.resources import files
+    folder = files('map_consistency_ros.io').joinpath('msg', 'slam_toolbox')
+    return {f'slam_toolbox/msg/{name}': folder.joinpath(f'{name}.msg').read_text()
+            for name in ('GraphNode', 'GraphEdge', 'PoseGraph', 'NewNodeEvent',
+                         'LoopClosureEvent')}
+
+
+def register_slam_toolbox_types(typestore) -> None:
+    """Register slam_toolbox's pose-graph messages in a rosbags typestore (bags are read and
+    written without slam_toolbox installed)."""
+    from rosbags.typesys import get_types_from_msg
+    types = {}
+    for name, text in slam_toolbox_definitions().items():
+        types.update(get_types_from_msg(text, name))
+    typestore.register(types)

@@ -45,8 +45,8 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet
 from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
                                            KeyframeEstimate, MonitorFeed, MonitorSettings,
-                                           MonitorSnapshot, PoseSample, Scan, sensor_poses,
-                                           warm_up)
+                                           MonitorSnapshot, PoseGraphNodes, PoseSample, Scan,
+                                           sensor_poses, warm_up)
 from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
                                                  unknown_names)
 from map_consistency_ros.core.verdict import (Assessment, ExplanationSettings, RegistrationCache,
@@ -56,6 +56,7 @@ from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, not_monitoring
 from map_consistency_ros.ros.markers import MarkerUpdates
+from map_consistency_ros.ros import slam_toolbox_graph
 from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -185,7 +186,10 @@ class MapConsistencyNode(Node):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_scans_lost))
         poses = MutuallyExclusiveCallbackGroup()
         pose_type = messages.POSE_SOURCE_TYPES[feed_settings.pose_source]
-        if feed_settings.pose_source != 'path':
+        if feed_settings.slam_toolbox_graph:
+            slam_toolbox_graph.subscribe(self, poses, self._convert, self._convert_bytes,
+                                         self._queue_pose)
+        elif feed_settings.pose_source != 'path':
             self.create_subscription(message_class(pose_type), 'pose',
                                      lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
                                      callback_group=poses)
@@ -402,12 +406,13 @@ class MapConsistencyNode(Node):
 
     def _apply(self, record):
         """Apply one record through the feed: (the update or None, whether it reset)."""
-        if isinstance(record, (KeyframeEstimate, GraphSnapshot)):
+        if isinstance(record, (KeyframeEstimate, GraphSnapshot, PoseGraphNodes)):
             self._frame_id = self._settings.frame_id or record.frame_id or 'map'
         applied = self._feed.apply(record)
         topic = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
                  Constraints: 'constraints',
-                 GraphSnapshot: 'graph_visualization'}[type(record)]
+                 GraphSnapshot: 'graph_visualization',
+                 **slam_toolbox_graph.RECORD_TOPICS}[type(record)]
         for warning in applied.warnings:
             self._input_problem(topic, warning)
         if applied.reset:
@@ -834,6 +839,9 @@ def main(args: list[str] | None = None) -> int:
             node = MapConsistencyNode()
         except (ParameterException, ValueError) as error:
             print(f'map_consistency: bad parameter: {error}', file=sys.stderr)
+            return 2
+        except slam_toolbox_graph.MissingInterfaces as error:
+            print(f'map_consistency: {error}', file=sys.stderr)
             return 2
         executor = _message_executor(node)
         executor.add_node(node)

@@ -1,8 +1,8 @@
 """The live state: the input records (scans, keyframe estimates, single poses, graph snapshots,
 constraints), the one feed from records to the monitor shared by the node, replay and the
 warm-up (keyframing of single poses, resets, stamp gaps), the pose sources behind it (the
-slam_toolbox graph-marker bridge), and ConsistencyMonitor, the incremental state (pair cache,
-placed geometry, both stages on demand). `monitor` stays a public module: tests patch it."""
+slam_toolbox graph-marker bridge and its PoseGraph bridge), and ConsistencyMonitor, the
+incremental state (pair cache, placed geometry, both stages on demand). `monitor` stays a public module: tests patch it."""
 from map_consistency_ros.core.live._feed import (KEYFRAMED_SOURCES, POSE_SOURCES,
                                                  RESET_CONFIRMATIONS, Applied, FeedSettings,
                                                  MonitorFeed, PoseKeyframer, ScanGaps, warm_up)
@@ -10,13 +10,16 @@ from map_consistency_ros.core.live._graph_bridge import (BridgeCounts, BridgeSet
                                                          HeadingFit, SlamToolboxBridge,
                                                          fit_rotations, interpolate_rotations,
                                                          neighbourhoods)
+from map_consistency_ros.core.live._pose_graph_bridge import PoseGraphBridge, PoseGraphCounts
 from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot,
-                                                    KeyframeEstimate, PoseSample, Record, Scan)
+                                                    KeyframeEstimate, LoopClosure, NodeEvent,
+                                                    PoseGraphNodes, PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    MonitorSnapshot, UpdateSummary, sensor_poses)
 
 __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
+    'NodeEvent', 'PoseGraphNodes', 'LoopClosure', 'PoseGraphBridge', 'PoseGraphCounts',
     'FeedSettings', 'MonitorFeed', 'Applied', 'PoseKeyframer', 'ScanGaps', 'warm_up',
     'POSE_SOURCES', 'KEYFRAMED_SOURCES', 'RESET_CONFIRMATIONS',
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',

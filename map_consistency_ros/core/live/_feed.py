@@ -18,6 +18,10 @@ record did, including every warning, so the node and replay report the same prob
   scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
   (core/graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
   keyframe estimate.
+- With `pose_source: slam_toolbox_graph`, `NodeEvent`s, `LoopClosure`s and `PoseGraphNodes`
+  (slam_toolbox's pose-graph interface) go to the PoseGraphBridge (core/pose_graph_bridge.py);
+  after each, unless the bridge waits for the graph of a loop closure, its keyframes are
+  applied as a keyframe estimate.
 
 `estimate_stamp` names the estimate the monitor's map holds, so that a verdict says which one
 it judged (the node's ~/report and replay's report, `judged_stamp`): at the last change of the
@@ -37,13 +41,16 @@ import numpy as np
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.live._graph_bridge import BridgeCounts, SlamToolboxBridge
+from map_consistency_ros.core.live._pose_graph_bridge import PoseGraphBridge, PoseGraphCounts
 from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                                    LoopClosure, NodeEvent, PoseGraphNodes,
                                                     PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    MonitorSnapshot, UpdateSummary)
 from map_consistency_ros.core.parameters import parameter
 
-POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox')
+POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox',
+                'slam_toolbox_graph')
 # Sources whose single poses are keyframed by travel; slam_toolbox's poses go to its bridge.
 KEYFRAMED_SOURCES = ('odometry', 'pose', 'pose_with_covariance')
 # A stamp gap longer than this many median scan periods counts the scans it must have held;
@@ -64,8 +71,10 @@ class FeedSettings:
     pose_source: str = parameter(
         'path', 'where keyframe poses come from: a keyframe Path on `trajectory`; single '
         'poses on `pose` (Odometry, PoseStamped, PoseWithCovarianceStamped), keyframed by '
-        'travel; or slam_toolbox: its `pose` (one per accepted scan) and its graph markers on '
-        '`graph_visualization`, bridged to its keyframe estimate',
+        'travel; slam_toolbox: its `pose` (one per accepted scan) and its graph markers on '
+        '`graph_visualization`, headings recovered from positions (releases without a pose '
+        'graph topic); or slam_toolbox_graph: its node events, loop-closure events and pose '
+        'graph (slam_toolbox with pull request 818), full headings; docs/slam_bridges.md',
         choices=POSE_SOURCES)
     max_range: float = parameter(
         8.0, 'usable laser range, capped by each scan\'s range_max; longer or invalid beams '
@@ -98,6 +107,11 @@ class FeedSettings:
     def slam_toolbox(self) -> bool:
         """Whether poses and graph snapshots go to the slam_toolbox bridge."""
         return self.pose_source == 'slam_toolbox'
+
+    @property
+    def slam_toolbox_graph(self) -> bool:
+        """Whether node events, loop closures and pose graphs go to the pose-graph bridge."""
+        return self.pose_source == 'slam_toolbox_graph'
 
 
 class PoseKeyframer:
@@ -221,6 +235,7 @@ class MonitorFeed:
                                         self.settings.keyframe_angle)
                           if self.settings.single_poses else None)
         self.bridge = SlamToolboxBridge() if self.settings.slam_toolbox else None
+        self.graph_bridge = PoseGraphBridge() if self.settings.slam_toolbox_graph else None
         self._held: GraphSnapshot | None = None  # a snapshot waiting for its vertices' poses
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
@@ -245,8 +260,11 @@ class MonitorFeed:
         return self._newest_scan
 
     @property
-    def bridge_counts(self) -> BridgeCounts | None:
-        """The slam_toolbox bridge's counts after its last snapshot (None for other sources)."""
+    def bridge_counts(self) -> BridgeCounts | PoseGraphCounts | None:
+        """The slam_toolbox bridge's counts after its last snapshot, or the pose-graph
+        bridge's (None for other sources)."""
+        if self.graph_bridge is not None:
+            return self.graph_bridge.counts
         return None if self.bridge is None else self.bridge.counts
 
     def snapshot(self) -> MonitorSnapshot:
@@ -264,6 +282,8 @@ class MonitorFeed:
             return self._estimate(record.stamps, record.poses, record.stamp)
         if isinstance(record, GraphSnapshot):
             return self._graph(record)
+        if isinstance(record, (NodeEvent, PoseGraphNodes, LoopClosure)):
+            return self._pose_graph(record)
         if isinstance(record, PoseSample):
             return self._bridge_pose(record) if self.bridge is not None else self._pose(record)
         if isinstance(record, Constraints):
@@ -387,6 +407,30 @@ class MonitorFeed:
             return Applied(warnings=tuple(warnings))
         applied = self._estimate(stamps, poses, math.nan)
         return Applied(summary=applied.summary, warnings=tuple(warnings) + applied.warnings)
+
+    def _pose_graph(self, record: NodeEvent | PoseGraphNodes | LoopClosure) -> Applied:
+        """A message of slam_toolbox's pose-graph interface to its bridge, and the bridge's
+        keyframes to the monitor unless it waits for the graph of a loop closure."""
+        bridge = self.graph_bridge
+        if bridge is None:
+            return Applied(warnings=(f'a slam_toolbox {type(record).__name__} was given while '
+                                     f'pose_source is {self.settings.pose_source!r}; ignored',))
+        try:
+            if isinstance(record, NodeEvent):
+                if not bridge.add_node(record.node_id, record.stamp, record.pose):
+                    return Applied()  # a repeated event changes nothing
+            elif isinstance(record, LoopClosure):
+                bridge.loop_closure(record.stamp)
+            else:
+                bridge.update_graph(record.ids, record.poses, record.stamp)
+        except ValueError as error:
+            return Applied(warnings=(f'slam_toolbox {type(record).__name__} ignored: {error}',))
+        if bridge.waiting:
+            return Applied()
+        stamps, poses = bridge.keyframes()
+        if not len(stamps):
+            return Applied()
+        return self._estimate(stamps, poses, math.nan)
 
     def _pose(self, sample: PoseSample) -> Applied:
         if self.keyframer is None:

@@ -65,4 +65,35 @@ class GraphSnapshot:
     frame_id: str = ''
 
 
-Record = Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot
+@dataclass(frozen=True)
+class NodeEvent:
+    """A new node of a SLAM pose graph (slam_toolbox's NewNodeEvent): its id, the stamp of the
+    scan it was built from, and its pose (x, y, yaw) when it was added."""
+
+    node_id: int
+    stamp: float
+    pose: np.ndarray  # (3,)
+
+
+@dataclass(frozen=True)
+class PoseGraphNodes:
+    """One full snapshot of a SLAM pose graph's nodes with headings (slam_toolbox's PoseGraph):
+    node ids (V,) and poses (V, 3) in `frame_id`; `stamp` is the message's header stamp (the
+    SLAM node's clock when it was built, not a scan's)."""
+
+    ids: np.ndarray
+    poses: np.ndarray
+    stamp: float
+    frame_id: str = ''
+
+
+@dataclass(frozen=True)
+class LoopClosure:
+    """A SLAM back-end closed a loop at `stamp` (slam_toolbox's LoopClosureEvent: its node's
+    clock); node poses move, and a PoseGraph built after it shows where to."""
+
+    stamp: float
+
+
+Record = (Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot | NodeEvent
+          | PoseGraphNodes | LoopClosure)
