@@ -79,8 +79,8 @@ def _spare_numba_the_scipy_linalg_import() -> None:
 
     Numba checks at that compilation whether BLAS is there by importing
     scipy.linalg.cython_blas, which runs all of scipy.linalg first (scipy's array-API layer,
-    numpy.f2py, docstring parsing), though no kernel here calls BLAS: the first call of a
-    cached kernel took a median 0.47 s that way and 0.25 s after this function (2026-12-04).
+    numpy.f2py, docstring parsing), though no kernel here calls BLAS: that import is most of
+    the first call of a cached kernel (docs/benchmarks.md, bench_check).
     The module needs nothing from its package, so it is loaded alone from the same file and
     found by name (numba's BLAS calls, `from scipy.linalg import cython_blas`), not as an
     attribute of scipy.linalg, which still imports normally where it is used (tune). Any
