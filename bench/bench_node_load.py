@@ -119,9 +119,14 @@ def peak_rss_mib(pid: int) -> float:
     return float('nan')
 
 
-def in_process(stamps, ranges, poses, model, path_every: int) -> np.ndarray:
+def in_process(stamps, ranges, poses, model, path_every: int, threads: int) -> np.ndarray:
     """Seconds of each Path update of the same stream through the feed without ROS (the
-    reference: what the node adds is conversion, queueing, markers, publishing, sharing)."""
+    reference: what the node adds is conversion, queueing, markers, publishing, sharing), its
+    kernels on as many threads as the node's updates (`update_threads`, 0: every core): the
+    thread count is a setting of both, not a cost of the node."""
+    import numba
+    available = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(available if threads == 0 else min(threads, available))
     from map_consistency_ros.core.live import KeyframeEstimate, MonitorFeed, Scan
     feed = MonitorFeed()
     seconds = []
@@ -198,7 +203,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         settle = time.monotonic() + 60  # the node may be behind: let it catch up, within reason
         while time.monotonic() < settle:
             time.sleep(0.5)
-            if observer.reports and observer.reports[-1]['keyframes'] == count:
+            if any(report['keyframes'] + report.get('folded_keyframes', 0) == count
+                   for report in list(observer.reports)[-3:]):
                 break
         time.sleep(1.5)  # a diagnostics period or so for the last figures
         waited = time.monotonic() - start - streamed
@@ -230,8 +236,11 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         observer.close()
         if node.poll() is None:
             node.kill()
-    keyframes = reports[-1]['keyframes'] if reports else 0
-    folded = reports[-1].get('folded_keyframes', 0) if reports else 0
+    # the newest update's report: the second stage publishes too, and may land last with the
+    # counts of the older snapshot it judged
+    newest = max(reports, key=lambda report: report['updates']) if reports else {}
+    keyframes = newest.get('keyframes', 0)
+    folded = newest.get('folded_keyframes', 0)
     sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
     print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s (streamed in '
           f'{streamed:.1f} s), a Path every {path_every} scans, executor {executor}'
@@ -250,7 +259,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         int(status.get('lost scans', 0)) + waiting + int(status.get('poses without scan', 0))
         >= count - keyframes - folded)
     print(f'  every scan a keyframe or its loss reported: {"yes" if honest else "NO"}')
-    published = reports[-1]['updates'] if reports else 0
+    published = newest.get('updates', 0)
     # one report per update (its first): the second stage publishes too, with the figures of
     # the last update
     first_reports: dict[int, dict] = {}
@@ -289,11 +298,20 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
                   f'{stage["markers_s"]:7.1f} {stage["publish_s"]:7.1f} | {explained:7.1f}')
         print(f'  last / first map-size bucket, median latency: '
               f'{buckets[-1] / buckets[0]:.2f} (target <= 1.5: flat in map size)')
+        if len(buckets) > 2:
+            # the first bucket is a young map: its keyframes overlap fewer earlier ones than
+            # the partner budget keeps later
+            print(f'  last / second bucket {buckets[-1] / buckets[1]:.2f}, largest / smallest '
+                  f'of the buckets after the first {max(buckets[1:]) / min(buckets[1:]):.2f}')
     if reference:
-        alone = in_process(stamps, ranges, poses, model, path_every) * 1e3
+        from map_consistency_ros.ros.settings import NodeSettings
+        threads = next((int(value.split(':=')[1]) for value in parameters
+                        if value.startswith('update_threads:=')), NodeSettings().update_threads)
+        alone = in_process(stamps, ranges, poses, model, path_every, threads) * 1e3
         print(f'  reference: the same Path updates in-process, no ROS: median '
               f'{np.median(alone):.1f} ms, p99 {np.percentile(alone, 99):.1f} ms '
-              f'({path_every} keyframes each)')
+              f'({path_every} keyframes each, kernels on {threads or "every"} thread(s) as the '
+              'node\'s updates)')
         if latency.size:
             print(f'  node / in-process median latency: {np.median(latency) / np.median(alone):.2f}'
                   ' (target <= 1.5)')

@@ -61,6 +61,9 @@ _PERIOD_SAMPLES = 64
 # re-stamped, not a period (a median period of microseconds would count a normal 0.1 s
 # interval as thousands of lost scans).
 _SHORTEST_PERIOD = 1e-3
+# Recent intervals whose 90th percentile is within this factor of their 10th are a steady rate
+# (a driver's jitter stays well inside it).
+_STEADY_SPREAD = 2.0
 RESET_CONFIRMATIONS = 5
 
 
@@ -195,8 +198,11 @@ class ScanGaps:
         if self._last is not None and stamp > self._last:
             interval = stamp - self._last
             if len(self._intervals) >= 8:
-                period = float(np.median(self._intervals))
-                if period > 0.0 and interval > _GAP_PERIODS * period:
+                low, period, high = np.percentile(self._intervals, [10, 50, 90])
+                # only a driver's steady rate has a period: stamps in bursts (a rebuilt log, a
+                # bag of relayed scans) would count every pause as thousands of lost scans
+                steady = high <= _STEADY_SPREAD * low
+                if steady and period > 0.0 and interval > _GAP_PERIODS * period:
                     missing = int(round(interval / period)) - 1
             if missing == 0 and interval >= _SHORTEST_PERIOD:
                 self._intervals.append(interval)  # gaps would inflate the period

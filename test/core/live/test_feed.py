@@ -181,6 +181,18 @@ def test_scans_published_twice_do_not_shrink_the_period():
     assert gaps.missing == 2
 
 
+def test_stamps_in_bursts_have_no_period_to_count_gaps_by():
+    # Intel rebuilt at its native rate: runs of scans 8 ms apart between 0.1 s intervals; the
+    # median interval (8 ms) is no period, and 0.1 s is not twelve lost scans
+    gaps = ScanGaps()
+    stamp = 0.0
+    for _ in range(40):
+        for interval in (0.008, 0.008, 0.008, 0.1):
+            stamp += interval
+            assert gaps.add(stamp) == 0
+    assert gaps.missing == 0
+
+
 def _sample(stamp, pose):
     return PoseSample(stamp=stamp, pose=np.asarray(pose, dtype=float), frame_id='odom',
                       child_frame_id='base_link')
