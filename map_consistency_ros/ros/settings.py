@@ -54,7 +54,7 @@ class NodeSettings:
     update_threads: int = parameter(
         1, "threads of the first stage's compiled kernels; the SLAM stack, the middleware and "
         'the second stage share the cores, and a kernel split across busy cores waits for its '
-        'slowest part (on 2 cores one thread halved the p99 update latency); 0: every core',
+        'slowest part; 0: every core',
         '', (0, 1024))
     executor: str = parameter(
         'events', "how the node takes its messages: 'events' (rclpy's C++ events executor, "
