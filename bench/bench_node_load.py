@@ -203,8 +203,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         settle = time.monotonic() + 60  # the node may be behind: let it catch up, within reason
         while time.monotonic() < settle:
             time.sleep(0.5)
-            if any(report['keyframes'] + report.get('folded_keyframes', 0) == count
-                   for report in list(observer.reports)[-3:]):
+            status = dict(observer.status)
+            if int(status.get('scans', 0)) + int(status.get('folded keyframes', 0)) == count:
                 break
         time.sleep(1.5)  # a diagnostics period or so for the last figures
         waited = time.monotonic() - start - streamed
@@ -239,8 +239,10 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     # the newest update's report: the second stage publishes too, and may land last with the
     # counts of the older snapshot it judged
     newest = max(reports, key=lambda report: report['updates']) if reports else {}
-    keyframes = newest.get('keyframes', 0)
-    folded = newest.get('folded_keyframes', 0)
+    # the counts from /diagnostics, published every period: a report goes out only when the
+    # map changed, and scans folded into a viewpoint at the end change no map
+    keyframes = int(status.get('scans', newest.get('keyframes', 0)))
+    folded = int(status.get('folded keyframes', newest.get('folded_keyframes', 0)))
     sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
     print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s (streamed in '
           f'{streamed:.1f} s), a Path every {path_every} scans, executor {executor}'
