@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core.consistency import (ConsistencyResult, check_consistency,
-                                                  evaluate_pairs)
+from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
+                                                  check_consistency, evaluate_pairs)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, se2
 from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
@@ -125,8 +125,12 @@ def main() -> None:
     print(f'{"moved":>6} {"update":>10} {"recompute()":>12} {"batch check":>12} {"speed-up":>9}'
           f' {"pairs measured":>15}')
     order = np.argsort(stamps, kind='stable')
+    # compared with the batch test on every scan and every pair: every keyframe a viewpoint,
+    # no partner budget
+    every_pair = (ConsistencyParameters(viewpoint_spacing=0.0, viewpoint_turn=0.0),
+                  MonitorSettings(max_partners=0))
     for fraction in (0.1, 0.5, 1.0):
-        trial = ConsistencyMonitor()
+        trial = ConsistencyMonitor(*every_pair)
         for stamp, scan in zip(stamps, ranges):
             trial.add_scan(stamp, scan, model)
         trial.update_trajectory(stamps, poses)
