@@ -52,7 +52,7 @@ def stream(stamps, ranges, poses, model) -> tuple[ConsistencyMonitor, np.ndarray
         monitor.add_scan(stamps[index], ranges[index], model)
         monitor.update_trajectory(stamps[:index + 1], poses[:index + 1])
         tested = time.perf_counter()
-        result = monitor.snapshot().result  # the test's statistics run here
+        result = monitor.evaluate().result  # the test's statistics run here
         times[index, :3] = (time.perf_counter() - start, time.process_time() - cpu,
                             time.perf_counter() - tested)
         if index % 10 == 9 and result is not None:
@@ -106,7 +106,7 @@ def main() -> None:
     base_rss = rss_mib()
 
     monitor, times, memory = stream(stamps, ranges, poses, model)
-    result = monitor.snapshot().result
+    result = monitor.evaluate().result
     print(f'# {args.log.name}: {count} scans of {ranges.shape[1]} beams, '
           f'{result.overlapping_pair_count} overlapping pairs, '
           f'{int(result.inconsistent.sum())} inconsistent scans at the logged poses')
@@ -137,11 +137,11 @@ def main() -> None:
         target = moved(poses, fraction)
         start = time.perf_counter()
         summary = trial.update_trajectory(stamps, target)
-        incremental = trial.snapshot().result  # the test's statistics run here
+        incremental = trial.evaluate().result  # the test's statistics run here
         update = time.perf_counter() - start
         start = time.perf_counter()
         full = trial.recompute()
-        trial.snapshot()
+        trial.evaluate()
         recompute = time.perf_counter() - start
         start = time.perf_counter()
         batch = check_consistency(ScanSet.from_ranges(ranges[order], target[order], model),
@@ -176,7 +176,7 @@ def main() -> None:
     for repeat in range(10):  # 9100 scans that never get a pose
         for stamp, scan in zip(stamps, ranges):
             bounded.add_scan(stamp + repeat * 1e4, scan, model)
-    print(f'9100 scans without poses: buffer holds {bounded.snapshot().buffered_scans} '
+    print(f'9100 scans without poses: buffer holds {bounded.evaluate().buffered_scans} '
           f'(bound 500), RSS {before:.0f} -> {rss_mib():.0f} MiB')
 
 

@@ -66,9 +66,9 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
         raise RuntimeError('the demo bag carries no constraints')
     (start, end), error = WRONG_LOOP
     solution = optimize(with_wrong_loop_closure(graph, (start, end), error), None, iterations=100)
-    stamps = monitor.snapshot().stamps
+    stamps = monitor.evaluate().stamps
     monitor.update_trajectory(stamps, solution.poses)
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     scans = snapshot.scans()
     _, explanation = check.verdict_settings(args)
     assessment = explain(scans, snapshot.result, explanation)

@@ -178,7 +178,7 @@ class Replay:
             if isinstance(record, Scan) and progress is not None:
                 progress(self.stats.scans, total)
         self.stats.seconds = time.perf_counter() - started
-        return self.feed.snapshot()
+        return self.feed.evaluate()
 
     def _count(self, record) -> None:
         stats = self.stats

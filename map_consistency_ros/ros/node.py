@@ -162,7 +162,7 @@ class MapConsistencyNode(Node):
         self._retuning = threading.Lock()
         self._calls = 0  # service calls being answered, for the shutdown to wait for
         self._tuner: threading.Thread | None = None
-        self._snapshot = self._feed.snapshot()  # replaced whole by the worker
+        self._snapshot = self._feed.evaluate()  # replaced whole by the worker
         self._serial = 0  # counts snapshots: a verdict never replaces one of a newer snapshot
         self._verdict_serial = -1
         self._marker_updates = MarkerUpdates()  # used under _publishing
@@ -456,7 +456,7 @@ class MapConsistencyNode(Node):
 
     def _take_snapshot(self) -> None:
         """The monitor's current state becomes the one published (worker thread)."""
-        snapshot = self._feed.snapshot()
+        snapshot = self._feed.evaluate()
         with self._publishing:
             self._snapshot, self._serial = snapshot, self._serial + 1
 
@@ -704,7 +704,7 @@ class MapConsistencyNode(Node):
 
     def _retune(self) -> tuple[bool, str]:
         graph, snapshot = self._wait(self._submit(
-            lambda: (self._feed.monitor.pose_graph(), self._feed.monitor.snapshot())),
+            lambda: (self._feed.monitor.pose_graph(), self._feed.monitor.evaluate())),
             self._settings.service_timeout)
         if graph is None:
             return False, ('no pose graph to tune: it needs two keyframes and constraint rows '

@@ -32,7 +32,7 @@ def snapshot(shared_data):
     displaced[40:] = se2.compose(se2.compose(poses[40], np.array([0.3, 0.0, 0.05])),
                                  se2.relative(poses[40], poses[40:]))
     monitor.update_trajectory(stamps, displaced)
-    return monitor.snapshot()
+    return monitor.evaluate()
 
 
 @pytest.fixture(scope='module')

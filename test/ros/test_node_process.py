@@ -403,16 +403,16 @@ def test_a_failed_explanation_is_shown_until_the_next_one_succeeds(ros_env, shar
         _cleanup(process, client)
 
 
-# the node's own entry point, printing how many threads the pair kernel gets, at most, in
-# first-stage updates and in ~/check
+# the node's own entry point, printing how many threads the monitor's pair measuring gets, at
+# most, in first-stage updates and in ~/check (the kernel runs on no more)
 _COUNTING_THREADS = """
 import sys
 import numba
 from map_consistency_ros.core.live import monitor
 from map_consistency_ros.ros import node
-real_measures, real_recompute = monitor.pair_measures, monitor.ConsistencyMonitor.recompute
+real_measures, real_recompute = monitor.measure_pairs, monitor.ConsistencyMonitor.recompute
 most, job = {}, []
-def pair_measures(*args, **kwargs):
+def measure_pairs(*args, **kwargs):
     caller = 'check' if job else 'update'
     if numba.get_num_threads() > most.get(caller, 0):
         most[caller] = numba.get_num_threads()
@@ -424,7 +424,7 @@ def recompute(self):
         return real_recompute(self)
     finally:
         job.pop()
-monitor.pair_measures, monitor.ConsistencyMonitor.recompute = pair_measures, recompute
+monitor.measure_pairs, monitor.ConsistencyMonitor.recompute = measure_pairs, recompute
 """ + _NODE_MAIN
 
 

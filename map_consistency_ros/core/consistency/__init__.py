@@ -14,14 +14,13 @@ from map_consistency_ros.core.consistency._check import (ConsistencyParameters,
                                                          average_inconsistency,
                                                          check_consistency, evaluate_pairs,
                                                          inconsistent_endpoints, local_pairs,
-                                                         local_scales, measure_pairs,
-                                                         pair_endpoints, robust_statistic,
-                                                         robust_sums)
+                                                         local_scales, pair_endpoints,
+                                                         robust_statistic, robust_sums)
 
 __all__ = [
     'statistics',
     'ConsistencyParameters', 'ConsistencyResult', 'Progress', 'check_consistency',
-    'measure_pairs', 'evaluate_pairs', 'local_pairs', 'local_scales', 'robust_sums',
+    'evaluate_pairs', 'local_pairs', 'local_scales', 'robust_sums',
     'robust_statistic', 'average_inconsistency', 'inconsistent_endpoints', 'pair_endpoints',
     'BaselineParameters', 'LocalGrids', 'PairLikelihoods', 'local_grids', 'pair_log_likelihoods',
     'map_statistic', 'traverse_cells', 'UNKNOWN', 'FREE', 'OCCUPIED',

@@ -17,7 +17,7 @@ from numba import njit
 
 from map_consistency_ros.core.consistency import statistics
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, candidate_pairs,
-                                               extents_overlap, pair_measures,
+                                               extents_overlap, measure_pairs, pair_measures,
                                                pairs_point_distances)
 from map_consistency_ros.core.parameters import parameter
 
@@ -350,30 +350,6 @@ def local_pairs(scans: ScanSet, window: int) -> np.ndarray:
     return np.stack([first[overlap], second[overlap]], axis=1).astype(np.int64)
 
 
-def _select(measures: PairMeasures, rows: np.ndarray) -> PairMeasures:
-    return PairMeasures(pairs=measures.pairs[rows], distance_sum=measures.distance_sum[rows],
-                        point_count=measures.point_count[rows], largest=measures.largest[rows])
-
-
-def measure_pairs(scans: ScanSet, pairs: np.ndarray, keep_largest: int,
-                  progress: Progress | None = None, chunk: int = 8192) -> PairMeasures:
-    """pair_measures in chunks, so that long runs can report progress."""
-    if progress is None or len(pairs) <= chunk:
-        measures = pair_measures(scans, pairs, keep_largest=keep_largest)
-        if progress is not None:
-            progress(len(pairs), len(pairs))
-        return measures
-    parts = []
-    for start in range(0, len(pairs), chunk):
-        parts.append(pair_measures(scans, pairs[start:start + chunk], keep_largest=keep_largest))
-        progress(min(start + chunk, len(pairs)), len(pairs))
-    return PairMeasures(
-        pairs=np.concatenate([part.pairs for part in parts]),
-        distance_sum=np.concatenate([part.distance_sum for part in parts]),
-        point_count=np.concatenate([part.point_count for part in parts]),
-        largest=np.concatenate([part.largest for part in parts]))
-
-
 def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None = None,
                       reference_scans: ScanSet | None = None,
                       progress: Progress | None = None) -> ConsistencyResult:
@@ -387,11 +363,11 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
     if reference.ranges.shape != scans.ranges.shape:
         raise ValueError('reference scans must be the same scans as the map scans')
     keep = parameters.trim_largest
-    measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress)
+    measures = measure_pairs(scans, candidate_pairs(scans.extents), keep, progress=progress)
     if reference_scans is None:
         # The local pairs are the candidate pairs of temporal neighbours: measured already.
         gap = measures.pairs[:, 1] - measures.pairs[:, 0]
-        local = _select(measures, gap <= parameters.local_reach)
+        local = measures.take(gap <= parameters.local_reach)
     else:
         local = pair_measures(reference, local_pairs(reference, parameters.local_window),
                               keep_largest=keep)

@@ -1,5 +1,6 @@
-"""Arrays that grow by rows: the per-slot state of the monitor, the spatial index and the
-node's markers, grown by doubling so that appending stays amortized O(1)."""
+"""Arrays that grow by rows (the per-slot state of the monitor, the spatial index and the
+node's markers, grown by doubling so that appending stays amortized O(1)), and read-only views
+of arrays that their owner may still write (a ScanSet's arrays, the monitor's caches)."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,3 +13,19 @@ def with_rows(array: np.ndarray, rows: int, fill: float = 0) -> np.ndarray:
     kept = min(rows, len(array))
     grown[:kept] = array[:kept]
     return grown
+
+
+def read_only(array: np.ndarray) -> np.ndarray:
+    """A view of `array` that cannot be written through; `array` itself keeps its flags.
+
+    Parameters
+    ----------
+    array: any array.
+
+    Returns
+    -------
+    A new view of the same memory with `writeable` False.
+    """
+    view = array.view()
+    view.setflags(write=False)
+    return view

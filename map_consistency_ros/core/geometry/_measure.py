@@ -15,6 +15,8 @@ point), as the original implementation does.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba
@@ -25,6 +27,9 @@ from map_consistency_ros.core.geometry._scan_geometry import ScanSet
 TWO_PI = 2.0 * math.pi
 # _rough_bearing is within 1.2e-5 rad of atan2; the slack covers that with a margin.
 BEARING_SLACK = 1e-4
+# Below this many pairs a batch runs on the calling thread alone: waking the OpenMP threads for
+# a handful of pairs costs more than it saves.
+PARALLEL_MIN_PAIRS = 100
 
 
 @dataclass(frozen=True)
@@ -40,6 +45,20 @@ class PairMeasures:
     distance_sum: np.ndarray
     point_count: np.ndarray
     largest: np.ndarray
+
+    def take(self, rows: np.ndarray) -> PairMeasures:
+        """The measures of some of the pairs.
+
+        Parameters
+        ----------
+        rows: indices of pairs (P',) or a boolean mask (P,).
+
+        Returns
+        -------
+        PairMeasures of the pairs `rows`, in that order.
+        """
+        return PairMeasures(pairs=self.pairs[rows], distance_sum=self.distance_sum[rows],
+                            point_count=self.point_count[rows], largest=self.largest[rows])
 
 
 @numba.njit(cache=True)
@@ -311,6 +330,50 @@ def pair_measures(scans: ScanSet, pairs: np.ndarray, keep_largest: int = 10) -> 
     range or a scan paired with itself.
     """
     return _measure(scans, pairs, keep_largest, naive=False)
+
+
+def measure_pairs(scans: ScanSet, pairs: np.ndarray, keep_largest: int = 10, chunk: int = 8192,
+                  progress: Callable[[int, int], None] | None = None) -> PairMeasures:
+    """pair_measures in batches, so that a long run can report progress and a caller's thread
+    gets control back between batches; a batch of fewer than PARALLEL_MIN_PAIRS pairs runs on
+    the calling thread alone. Batching changes no measure (each pair is measured alone).
+
+    Parameters
+    ----------
+    scans, pairs, keep_largest: as pair_measures.
+    chunk: the most pairs in one batch (positive).
+    progress: called as progress(pairs measured, all pairs) after every batch.
+
+    Returns
+    -------
+    The PairMeasures of pair_measures(scans, pairs, keep_largest).
+    """
+    count = len(pairs)
+    parts = []
+    for start in range(0, max(count, 1), chunk):  # one (empty) batch for no pairs
+        batch = pairs[start:start + chunk]
+        with _threads_for(len(batch)):
+            parts.append(pair_measures(scans, batch, keep_largest=keep_largest))
+        if progress is not None:
+            progress(min(start + chunk, count), count)
+    if len(parts) == 1:
+        return parts[0]
+    return PairMeasures(*(np.concatenate([getattr(part, name) for part in parts])
+                          for name in ('pairs', 'distance_sum', 'point_count', 'largest')))
+
+
+@contextmanager
+def _threads_for(pair_count: int) -> Iterator[None]:
+    """Run numba's parallel kernels on this thread alone for small batches."""
+    if pair_count >= PARALLEL_MIN_PAIRS:
+        yield
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)  # thread-local: other threads keep their setting
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 def pair_measures_naive(scans: ScanSet, pairs: np.ndarray, keep_largest: int = 10) -> PairMeasures:

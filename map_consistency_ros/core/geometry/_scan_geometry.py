@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from map_consistency_ros.core.geometry import se2
+from map_consistency_ros.core.geometry._arrays import read_only
 
 FULL_CIRCLE_TOLERANCE = 1e-9
 
@@ -81,11 +82,6 @@ def _extents(xs: np.ndarray, ys: np.ndarray, poses: np.ndarray) -> np.ndarray:
 SCAN_ARRAYS = ('sensor_poses', 'ranges', 'valid', 'endpoints', 'extents')
 
 
-def _read_only(array: np.ndarray) -> np.ndarray:
-    array.setflags(write=False)
-    return array
-
-
 @dataclass(frozen=True)
 class ScanSet:
     """N scans of K beams placed in the world, with their visibility polygons.
@@ -115,11 +111,11 @@ class ScanSet:
         xs = poses[:, 0:1] + ranges * np.cos(bearings)
         ys = poses[:, 1:2] + ranges * np.sin(bearings)
         endpoints = np.stack([xs, ys], axis=-1)
-        object.__setattr__(self, 'sensor_poses', _read_only(poses))
-        object.__setattr__(self, 'ranges', _read_only(ranges))
-        object.__setattr__(self, 'valid', _read_only(np.ascontiguousarray(self.valid, bool)))
-        object.__setattr__(self, 'endpoints', _read_only(np.ascontiguousarray(endpoints)))
-        object.__setattr__(self, 'extents', _read_only(_extents(xs, ys, poses)))
+        object.__setattr__(self, 'sensor_poses', read_only(poses))
+        object.__setattr__(self, 'ranges', read_only(ranges))
+        object.__setattr__(self, 'valid', read_only(np.ascontiguousarray(self.valid, bool)))
+        object.__setattr__(self, 'endpoints', read_only(np.ascontiguousarray(endpoints)))
+        object.__setattr__(self, 'extents', read_only(_extents(xs, ys, poses)))
 
     @classmethod
     def from_ranges(cls, ranges: np.ndarray, sensor_poses: np.ndarray,
@@ -163,7 +159,7 @@ class ScanSet:
         scans = object.__new__(cls)
         object.__setattr__(scans, 'model', model)
         for name in SCAN_ARRAYS:
-            object.__setattr__(scans, name, _read_only(np.ascontiguousarray(arrays[name])))
+            object.__setattr__(scans, name, read_only(np.ascontiguousarray(arrays[name])))
         return scans
 
     @property

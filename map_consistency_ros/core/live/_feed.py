@@ -28,7 +28,7 @@ it judged (the node's ~/report and replay's report, `judged_stamp`): at the last
 map, the newest estimate taken, by its header stamp, or, for estimates without one (single
 poses, graph snapshots), its newest keyframe's stamp. A scan that completes a keyframe of that
 estimate later changes the map under the same name; an estimate that changes nothing renames
-nothing. `snapshot()` is the monitor's snapshot with it.
+nothing. `evaluate()` is the monitor's evaluation with it.
 """
 from __future__ import annotations
 
@@ -273,9 +273,10 @@ class MonitorFeed:
             return self.graph_bridge.counts
         return None if self.bridge is None else self.bridge.counts
 
-    def snapshot(self) -> MonitorSnapshot:
-        """The monitor's snapshot, naming the estimate it holds (`estimate_stamp`)."""
-        return replace(self.monitor.snapshot(), estimate_stamp=self.estimate_stamp)
+    def evaluate(self) -> MonitorSnapshot:
+        """The monitor's evaluation (the test runs when the map changed), naming the estimate
+        it holds (`estimate_stamp`)."""
+        return replace(self.monitor.evaluate(), estimate_stamp=self.estimate_stamp)
 
     def apply(self, record: Record) -> Applied:
         """Apply one record; bad content becomes a warning, never an exception."""
@@ -485,7 +486,7 @@ def warm_up() -> None:
     placed = poses.copy()
     placed[walk:, 2] += math.radians(3.0)
     feed.apply(KeyframeEstimate(stamps=np.arange(float(len(poses))), poses=placed))
-    snapshot = feed.monitor.snapshot()
+    snapshot = feed.monitor.evaluate()
     explain(snapshot.scans(), snapshot.result, ExplanationSettings())
 
 

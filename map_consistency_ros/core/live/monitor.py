@@ -14,45 +14,40 @@ estimate. The monitor keeps, per keyframe:
   with candidates from a spatial index of the scans' extents.
 
 Keyframes are identified by a stable slot (registration order); statistics run on keyframes in
-stamp order. Not thread-safe: one thread owns a monitor.
+stamp order. The test runs only when asked for (`evaluate`), once per change of the map. Not
+thread-safe: one thread owns a monitor.
+
+The pieces, each in a module of its own with its invariants: the scan buffer (_scan_buffer.py),
+the keyframe store and stamp matching (_keyframes.py), the pair caches (_pair_cache.py), which
+pairs are measured (_pair_selection.py: the partner budget, the local window) and the placed
+geometry (_placement.py). The monitor coordinates them.
 """
 from __future__ import annotations
 
 import math
 import time
-from collections import OrderedDict
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 
 from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
                                               split_constraint_rows)
-# robust_sums: the pair cache trims each pair once, as evaluate_pairs would on every update
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  evaluate_pairs, local_scales, robust_sums)
-from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
-                                               SensorModel, is_new_viewpoint, pair_measures, se2,
-                                               with_rows)
+                                                  evaluate_pairs, local_scales)
+from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, ScanSet,
+                                               SensorModel, is_new_viewpoint, measure_pairs,
+                                               read_only, se2)
+from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_stamps,
+                                                      rank_of_slot)
+from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair_keys
+from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
+from map_consistency_ros.core.live._placement import Placement
+from map_consistency_ros.core.live._scan_buffer import ScanBuffer
 from map_consistency_ros.core.parameters import parameter
 
-# Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
-# threads for a handful of pairs costs more than it saves; from about a hundred, two threads
-# halve the time on an idle 2-core machine (bench/bench_monitor.py).
-PARALLEL_MIN_PAIRS = 100
 # Batches of at most this many pairs keep a live node's shutdown responsive during a large
 # update (a loop closure, a burst of keyframes).
 MEASURE_CHUNK = 1024
-# Pair keys pack two slots into one int64 so that pair sets compare with np.isin / np.unique.
-_SLOT_BITS = 31
-# Partners of a new keyframe further apart than this many slots belong to different visits of
-# its place (a pass through a place gives consecutive overlapping keyframes; a few may miss it).
-_VISIT_GAP = 5
-# A trajectory pose's slot: its keyframe's, or one of these.
-_NO_SCAN = -1  # no scan registered for it (yet)
-_FOLDED = -2  # its scan was folded into the previous viewpoint (core/viewpoints.py)
 
 
 @dataclass(frozen=True)
@@ -132,7 +127,7 @@ class MonitorSnapshot:
     dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
     poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
     folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
-    estimate_stamp: float = math.nan  # the estimate these poses are (MonitorFeed.snapshot)
+    estimate_stamp: float = math.nan  # the estimate these poses are (MonitorFeed.evaluate)
 
     @property
     def keyframe_count(self) -> int:
@@ -149,235 +144,6 @@ def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.nda
     return se2.compose(keyframe_poses, np.broadcast_to(laser_offset, keyframe_poses.shape))
 
 
-def _match(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
-           order: np.ndarray | None = None) -> np.ndarray:
-    """Index of the stamp nearest to each query within `tolerance`, -1 where none; `order`:
-    the stamps' stable argsort when the caller keeps it."""
-    found = np.full(queries.size, -1, dtype=np.int64)
-    if stamps.size == 0 or queries.size == 0:
-        return found
-    order = np.argsort(stamps, kind='stable') if order is None else order
-    ordered = stamps[order]
-    right = np.clip(np.searchsorted(ordered, queries), 0, ordered.size - 1)
-    left = np.clip(right - 1, 0, ordered.size - 1)
-    nearer = np.where(np.abs(ordered[left] - queries) < np.abs(ordered[right] - queries),
-                      left, right)
-    close = np.abs(ordered[nearer] - queries) <= tolerance
-    found[close] = order[nearer[close]]
-    return found
-
-
-@contextmanager
-def _threads_for(pair_count: int) -> Iterator[None]:
-    """Run numba's parallel kernels on this thread alone for small batches."""
-    if pair_count >= PARALLEL_MIN_PAIRS:
-        yield
-        return
-    previous = numba.get_num_threads()
-    numba.set_num_threads(1)  # thread-local: other threads keep their setting
-    try:
-        yield
-    finally:
-        numba.set_num_threads(previous)
-
-
-def _pair_keys(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    low, high = np.minimum(first, second), np.maximum(first, second)
-    return (low.astype(np.int64) << _SLOT_BITS) | high.astype(np.int64)
-
-
-def _key_slots(keys: np.ndarray) -> np.ndarray:
-    return np.stack([keys >> _SLOT_BITS, keys & ((1 << _SLOT_BITS) - 1)], axis=1)
-
-
-class _PairCache:
-    """Pair measures of slot pairs (low, high) in growable arrays, insertion order, with each
-    pair's trimmed (M_ij, n_ij) of the test, computed once when the pair is measured.
-
-    An entry is never written once stored: inserts go past the end, and dropping entries or
-    growing builds new arrays. So views of the first `size` entries stay valid for as long as
-    anyone holds them, and a snapshot shares them instead of copying a million pairs.
-    """
-
-    def __init__(self, keep_largest: int, trim: int) -> None:
-        self.size = 0
-        self.generation = 0  # counts drops: between two drops entries are only appended
-        # per slot, the first entry that can hold one of its pairs: the size when the slot's
-        # pairs were first inserted (its later partners come later), 0 after a drop
-        self._first_rows = np.zeros(0, dtype=np.int64)
-        self._trim = trim
-        self._pairs = np.zeros((64, 2), dtype=np.int64)
-        self._distance_sum = np.zeros(64)
-        self._point_count = np.zeros(64, dtype=np.int64)
-        self._largest = np.zeros((64, keep_largest))
-        self._trimmed_sum = np.zeros(64)
-        self._trimmed_count = np.zeros(64, dtype=np.int64)
-
-    @property
-    def pairs(self) -> np.ndarray:
-        return self._pairs[:self.size]
-
-    @property
-    def keys(self) -> np.ndarray:
-        return _pair_keys(self.pairs[:, 0], self.pairs[:, 1])
-
-    def _arrays(self) -> tuple[np.ndarray, ...]:
-        return (self._pairs, self._distance_sum, self._point_count, self._largest,
-                self._trimmed_sum, self._trimmed_count)
-
-    def _keep(self, keep: np.ndarray) -> None:
-        kept = int(np.count_nonzero(keep))
-        self.generation += 1
-        self._first_rows[:] = 0  # entries moved down
-        (self._pairs, self._distance_sum, self._point_count, self._largest,
-         self._trimmed_sum, self._trimmed_count) = (
-            with_rows(array[:self.size][keep], array.shape[0]) for array in self._arrays())
-        self.size = kept
-
-    def retain(self, keys: np.ndarray) -> None:
-        """Drop every entry whose key is not in `keys`."""
-        self._keep(np.isin(self.keys, keys))
-
-    def drop_slots(self, slots: np.ndarray, slot_count: int) -> None:
-        """Drop every pair that involves one of `slots` (all below `slot_count`)."""
-        if slots.size == 0:
-            return
-        hit = np.zeros(slot_count, dtype=bool)
-        hit[slots] = True
-        involved = hit[self.pairs[:, 0]] | hit[self.pairs[:, 1]]
-        if involved.any():
-            self._keep(~involved)
-
-    def first_rows(self, slot_count: int) -> np.ndarray:
-        """(slot_count,) no pair of slot s lies before entry first_rows[s]."""
-        rows = np.zeros(slot_count, dtype=np.int64)
-        known = min(slot_count, self._first_rows.size)
-        rows[:known] = self._first_rows[:known]
-        return rows
-
-    def mark_new(self, slots: np.ndarray) -> None:
-        """`slots` have no pair yet: theirs are all inserted from now on."""
-        if slots.size and slots.max() >= self._first_rows.size:
-            self._first_rows = with_rows(self._first_rows,
-                                         max(int(slots.max()) + 1, 2 * self._first_rows.size))
-        self._first_rows[slots] = self.size
-
-    def insert(self, keys: np.ndarray, measures: PairMeasures) -> None:
-        end = self.size + keys.size
-        if end > self._pairs.shape[0]:
-            capacity = max(2 * self._pairs.shape[0], end)
-            (self._pairs, self._distance_sum, self._point_count, self._largest,
-             self._trimmed_sum, self._trimmed_count) = (
-                with_rows(array[:self.size], capacity) for array in self._arrays())
-        self._pairs[self.size:end] = _key_slots(keys)
-        self._distance_sum[self.size:end] = measures.distance_sum
-        self._point_count[self.size:end] = measures.point_count
-        self._largest[self.size:end] = measures.largest
-        self._trimmed_sum[self.size:end], self._trimmed_count[self.size:end] = robust_sums(
-            measures, self._trim)
-        self.size = end
-
-    def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
-        """The cached pairs as PairMeasures over scan indices `rank_of_slot[slot]` (i < j);
-        None means ranks are slots. Read-only views (see the class)."""
-        if rank_of_slot is None:
-            pairs = self.pairs
-        else:  # each row (i, j) with i < j; sorting rows of two is many times slower
-            first, second = rank_of_slot[self.pairs[:, 0]], rank_of_slot[self.pairs[:, 1]]
-            pairs = np.stack([np.minimum(first, second), np.maximum(first, second)], axis=1)
-        return PairMeasures(pairs=_read_only(pairs),
-                            distance_sum=_read_only(self._distance_sum[:self.size]),
-                            point_count=_read_only(self._point_count[:self.size]),
-                            largest=_read_only(self._largest[:self.size]))
-
-    def robust(self) -> tuple[np.ndarray, np.ndarray]:
-        """The trimmed (M_ij, n_ij) of the cached pairs, in the order of `measures`."""
-        return (_read_only(self._trimmed_sum[:self.size]),
-                _read_only(self._trimmed_count[:self.size]))
-
-
-class _Keyframes:
-    """Growable per-keyframe arrays indexed by slot."""
-
-    def __init__(self, beams: int) -> None:
-        self.count = 0
-        self.stamps = np.zeros(16)
-        self.poses = np.zeros((16, 3))
-        self.incremental = np.zeros((16, 3))
-        self.ranges = np.zeros((16, beams))
-        # whether a keyframe's pairs with earlier ones were thinned to the partner budget on
-        # arrival (the kept pairs are the monitor's _kept_partners)
-        self.budgeted = np.zeros(16, dtype=bool)
-        # slots in stamp order, kept: every scan and every trajectory is matched against them
-        self._order = np.zeros(0, dtype=np.int64)
-
-    def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
-               ranges: np.ndarray) -> int:
-        if self.count == self.stamps.size:
-            rows = 2 * self.count
-            self.stamps, self.poses, self.incremental, self.ranges = (
-                with_rows(array, rows)
-                for array in (self.stamps, self.poses, self.incremental, self.ranges))
-            self.budgeted = with_rows(self.budgeted, rows, fill=False)
-        slot = self.count
-        self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
-        self.ranges[slot] = ranges
-        self.count += 1
-        if self._order.size == slot and (slot == 0 or stamp >= self.stamps[self._order[-1]]):
-            self._order = np.append(self._order, slot)  # the usual case: in stamp order
-        else:
-            self._order = np.argsort(self.stamps[:self.count], kind='stable')
-        return slot
-
-    def order(self) -> np.ndarray:
-        """Slots in stamp order (read-only)."""
-        return _read_only(self._order)
-
-    def match(self, queries: np.ndarray, tolerance: float) -> np.ndarray:
-        """The slot whose stamp is nearest to each query within `tolerance`, -1 where none."""
-        return _match(queries, self.stamps[:self.count], tolerance, self._order)
-
-
-class _Placement:
-    """The world geometry (a ScanSet's arrays) of keyframe slots at one kind of pose, kept
-    until a slot moves: an update then places only the scans it added or moved, where
-    rebuilding every scan it touches was a quarter of its time."""
-
-    def __init__(self) -> None:
-        self._rows: dict[str, np.ndarray] = {}
-        self._fresh = np.zeros(0, dtype=bool)
-        self._model: SensorModel | None = None
-
-    def invalidate(self, slots: np.ndarray) -> None:
-        """Slots whose pose changed."""
-        slots = np.asarray(slots, dtype=np.int64)
-        self._fresh[slots[slots < self._fresh.size]] = False
-
-    def scans(self, slots: np.ndarray, build: Callable[[np.ndarray], ScanSet]) -> ScanSet:
-        """The scans of `slots`; `build(slots)` places the ones not yet (or no longer) kept."""
-        slots = np.asarray(slots, dtype=np.int64)
-        known = slots < self._fresh.size
-        known[known] = self._fresh[slots[known]]
-        missing = np.unique(slots[~known])
-        if missing.size:
-            self._store(missing, build(missing))
-        return ScanSet.from_parts(self._model, **{name: rows[slots]
-                                                  for name, rows in self._rows.items()})
-
-    def _store(self, slots: np.ndarray, placed: ScanSet) -> None:
-        self._model = placed.model
-        needed = int(slots.max()) + 1
-        if needed > self._fresh.size:
-            capacity = max(needed, 2 * self._fresh.size, 16)
-            for name in SCAN_ARRAYS:
-                part = getattr(placed, name)
-                self._rows[name] = with_rows(self._rows.get(name, part[:0]), capacity)
-            self._fresh = with_rows(self._fresh, capacity)
-        for name in SCAN_ARRAYS:
-            self._rows[name][slots] = getattr(placed, name)
-        self._fresh[slots] = True
-
-
 def _same_model(a: SensorModel, b: SensorModel) -> bool:
     return (math.isclose(a.angle_min, b.angle_min, abs_tol=1e-9)
             and math.isclose(a.angle_increment, b.angle_increment, abs_tol=1e-12)
@@ -389,8 +155,8 @@ class ConsistencyMonitor:
     """Scans + the current trajectory -> an up-to-date consistency verdict, incrementally.
 
     Feed it with `add_scan` and `update_trajectory` (a late scan of an already published pose
-    is registered by the next `update_trajectory` or by `refresh`); read it with `snapshot`.
-    Bad input raises ValueError and leaves the state unchanged.
+    is registered by the next `update_trajectory` or by `refresh`); run the test and read the
+    state with `evaluate`. Bad input raises ValueError and leaves the state unchanged.
     """
 
     def __init__(self, parameters: ConsistencyParameters | None = None,
@@ -400,30 +166,29 @@ class ConsistencyMonitor:
         self._offset = np.asarray(self.settings.laser_offset, dtype=np.float64)
         self._keep = max(self.parameters.trim_largest, 1)
         self._model: SensorModel | None = None
-        self._buffer: OrderedDict[float, np.ndarray] = OrderedDict()
-        self._keyframes: _Keyframes | None = None
-        self._index = ScanExtentIndex(self.settings.cell_size)
-        trim = self.parameters.trim_largest
-        self._current = _PairCache(self._keep, trim)
-        self._local = _PairCache(self._keep, trim)
-        self._placed, self._placed_incremental = _Placement(), _Placement()
+        self._buffer = ScanBuffer(self.settings.max_buffered_scans, self.settings.stamp_tolerance)
+        self._keyframes: Keyframes | None = None  # from the first scan (its beam count) on
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
-        # _path_slots at a keyframe count; a new trajectory clears it
+        # _path_slots at a (keyframe count, folded count); a new trajectory clears it
         self._path_slots_of: tuple[tuple[int, int], np.ndarray] | None = None
-        # stamps of the scans folded into their previous viewpoint, sorted
-        self._folded = np.zeros(0)
-        # pair keys kept by the partner budget of keyframes that exceeded it (sorted)
-        self._kept_partners = np.zeros(0, dtype=np.int64)
+        self._reset_pairs()
         self._result: ConsistencyResult | None = None
         # the last result with rank == slot, its pair cache and the cache's generation then:
         # while the cache only grows, the next test starts from it
-        self._tested_on: tuple[_PairCache, int, ConsistencyResult] | None = None
+        self._tested_on: tuple[PairCache, int, ConsistencyResult] | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
-        self.dropped_scans = 0  # pushed out of the full buffer
-        self._newest_scan = -math.inf
+
+    def _reset_pairs(self) -> None:
+        """Empty pair caches, index, placements and partner budget (nothing measured yet)."""
+        self._index = ScanExtentIndex(self.settings.cell_size)
+        trim = self.parameters.trim_largest
+        self._current = PairCache(self._keep, trim)  # map pairs at the current poses
+        self._local = PairCache(self._keep, trim)  # local-window pairs at incremental poses
+        self._placed, self._placed_incremental = Placement(), Placement()
+        self._budget = PartnerBudget(self.settings.max_partners)
 
     # -- input -------------------------------------------------------------------------------
 
@@ -435,6 +200,11 @@ class ConsistencyMonitor:
     @property
     def keyframe_count(self) -> int:
         return 0 if self._keyframes is None else self._keyframes.count
+
+    @property
+    def dropped_scans(self) -> int:
+        """Scans pushed out of the full buffer before a pose named them."""
+        return self._buffer.dropped
 
     def add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
         """Buffer one scan until a trajectory names its pose.
@@ -452,21 +222,17 @@ class ConsistencyMonitor:
         model.check_beam_count(ranges.size)
         if self._model is None:
             self._model = model
-            self._keyframes = _Keyframes(ranges.size)
-        elif not _same_model(model, self._model) or ranges.size != self._keyframes.ranges.shape[1]:
+            self._keyframes = Keyframes(ranges.size, self.settings.stamp_tolerance)
+        elif not _same_model(model, self._model) or ranges.size != self._keyframes.beams:
             raise ValueError(
                 f'scan at {stamp:.6f} has {ranges.size} beams from {model.angle_min:.6g} rad '
                 f'by {model.angle_increment:.6g} rad (max range {model.max_range:g}); the monitor '
-                f'takes only scans like the first ({self._keyframes.ranges.shape[1]} beams from '
+                f'takes only scans like the first ({self._keyframes.beams} beams from '
                 f'{self._model.angle_min:.6g} by {self._model.angle_increment:.6g}, max range '
                 f'{self._model.max_range:g})')
-        if self._registered_slot(stamp) is not None or self._is_folded(stamp):
+        if self._keyframes.holds(stamp):
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
-        self._buffer[stamp] = ranges
-        self._newest_scan = max(self._newest_scan, stamp)
-        while len(self._buffer) > self.settings.max_buffered_scans:
-            self._buffer.pop(min(self._buffer))
-            self.dropped_scans += 1
+        self._buffer.add(stamp, ranges)
 
     def pose_problem(self, pose: np.ndarray) -> str:
         """Why a single pose (3,) is unusable ('' when it is usable)."""
@@ -480,8 +246,8 @@ class ConsistencyMonitor:
     @property
     def pending(self) -> bool:
         """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
-        unmatched = self._path_stamps[self._path_slots() == _NO_SCAN]
-        return bool(unmatched.size and np.isfinite(self._buffer_matches(unmatched)).any())
+        unmatched = self._path_stamps[self._path_slots() == NO_SCAN]
+        return bool(unmatched.size and np.isfinite(self._buffer.matches(unmatched)).any())
 
     def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
         """Take the back-end's full current estimate: register, move, measure, test.
@@ -523,16 +289,10 @@ class ConsistencyMonitor:
         return self._apply_path(())
 
     def recompute(self) -> UpdateSummary:
-        """Measure every pair again from scratch (the incremental caches are rebuilt)."""
+        """Measure every pair again from scratch (the incremental caches are rebuilt; the
+        partner budget chooses again on the current poses)."""
         start = time.perf_counter()
-        self._index = ScanExtentIndex(self.settings.cell_size)
-        trim = self.parameters.trim_largest
-        self._current = _PairCache(self._keep, trim)
-        self._local = _PairCache(self._keep, trim)
-        self._placed, self._placed_incremental = _Placement(), _Placement()
-        self._kept_partners = np.zeros(0, dtype=np.int64)  # chosen again on the current poses
-        if self._keyframes is not None:
-            self._keyframes.budgeted[:] = False
+        self._reset_pairs()
         slots = np.arange(self.keyframe_count)
         measured = self._measure(slots, slots) if slots.size else 0
         self._last = UpdateSummary(moved_keyframes=int(slots.size), measured_pairs=measured,
@@ -572,8 +332,8 @@ class ConsistencyMonitor:
         rows = self._constraints
         tolerance = self.settings.stamp_tolerance
         stamp_from, stamp_to, measurements, information = split_constraint_rows(rows)
-        edge_from, edge_to = (_match(stamp_from, stamps, tolerance),
-                              _match(stamp_to, stamps, tolerance))
+        edge_from, edge_to = (match_stamps(stamp_from, stamps, tolerance),
+                              match_stamps(stamp_to, stamps, tolerance))
         known = (edge_from >= 0) & (edge_to >= 0) & (edge_from != edge_to)
         if not known.any():
             return None
@@ -583,8 +343,15 @@ class ConsistencyMonitor:
                          edge_to=edge_to[known], measurements=measurements[known],
                          information=information[known], fixed=fixed)
 
-    def snapshot(self) -> MonitorSnapshot:
-        """Copies of the keyframes in stamp order and the last verdict."""
+    def evaluate(self) -> MonitorSnapshot:
+        """Run the test on the current map (when it changed since the last evaluation) and
+        return it with the keyframes in stamp order.
+
+        Returns
+        -------
+        A MonitorSnapshot: copies (or read-only views) of the keyframes and the verdict on them
+        (`result`, None while there is no keyframe).
+        """
         if self._keyframes is None:
             empty = np.zeros((0, 3))
             return MonitorSnapshot(ids=np.zeros(0, dtype=np.int64), stamps=np.zeros(0),
@@ -595,64 +362,43 @@ class ConsistencyMonitor:
                                    **self._loss())
         keyframes = self._keyframes
         order = keyframes.order()
-        if np.array_equal(order, np.arange(keyframes.count)):
+        if keyframes.in_stamp_order():
             # A slot's ranges never change once registered: a read-only view is a snapshot,
             # and copying every scan on every update would grow with the map.
-            ranges = _read_only(keyframes.ranges[:keyframes.count])
+            ranges = read_only(keyframes.ranges[:keyframes.count])
         else:
             ranges = keyframes.ranges[order]
         return MonitorSnapshot(
             ids=order.astype(np.int64), stamps=keyframes.stamps[order],
             poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
             ranges=ranges, model=self._model,
-            laser_offset=self._offset.copy(), result=self._evaluate(),
+            laser_offset=self._offset.copy(), result=self._test(),
             buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
             last_update=self._last, **self._loss())
 
     def _loss(self) -> dict[str, int]:
         # Scans arrive in stamp order: a pose older than the newest scan and still without
         # one names a scan that was lost (or refused).
-        unmatched = self._path_stamps[self._path_slots() == _NO_SCAN]
-        late = unmatched < self._newest_scan - self.settings.stamp_tolerance
+        unmatched = self._path_stamps[self._path_slots() == NO_SCAN]
+        late = unmatched < self._buffer.newest - self.settings.stamp_tolerance
         return dict(dropped_scans=self.dropped_scans,
                     poses_without_scan=int(np.count_nonzero(late)),
-                    folded_scans=int(self._folded.size))
+                    folded_scans=self._folded_count())
 
     # -- bookkeeping -------------------------------------------------------------------------
 
-    def _is_folded(self, stamp: float) -> bool:
-        return bool(_match(np.array([stamp]), self._folded, self.settings.stamp_tolerance,
-                           np.arange(self._folded.size))[0] >= 0)
-
-    def _registered_slot(self, stamp: float) -> int | None:
-        if self.keyframe_count == 0:
-            return None
-        slot = int(self._keyframes.match(np.array([stamp]), self.settings.stamp_tolerance)[0])
-        return slot if slot >= 0 else None
-
-    def _buffer_matches(self, stamps: np.ndarray) -> np.ndarray:
-        """For each stamp, the matching buffered scan's stamp, NaN where none."""
-        buffered = np.fromiter(self._buffer, dtype=np.float64, count=len(self._buffer))
-        found = _match(stamps, buffered, self.settings.stamp_tolerance)
-        return np.where(found >= 0, buffered[np.maximum(found, 0)] if buffered.size else np.nan,
-                        np.nan)
+    def _folded_count(self) -> int:
+        return 0 if self._keyframes is None else int(self._keyframes.folded.size)
 
     def _path_slots(self) -> np.ndarray:
-        """For each pose of the last trajectory, its keyframe slot, _FOLDED or _NO_SCAN (a
+        """For each pose of the last trajectory, its keyframe slot, FOLDED or NO_SCAN (a
         copy: callers fill in slots they register)."""
-        count = self.keyframe_count
-        state = (count, self._folded.size)
+        state = (self.keyframe_count, self._folded_count())
         if self._path_slots_of is None or self._path_slots_of[0] != state:
             # kept: the node asks on every scan whether one is pending
-            slots = (np.full(self._path_stamps.size, _NO_SCAN, dtype=np.int64) if count == 0
-                     else self._keyframes.match(self._path_stamps,
-                                                self.settings.stamp_tolerance))
-            if count:
-                slots[_claimed_twice(slots, self._path_stamps, self._keyframes.stamps)] = _NO_SCAN
-            if self._folded.size:
-                folded = _match(self._path_stamps, self._folded, self.settings.stamp_tolerance,
-                                np.arange(self._folded.size)) >= 0
-                slots[folded & (slots == _NO_SCAN)] = _FOLDED
+            slots = (np.full(self._path_stamps.size, NO_SCAN, dtype=np.int64)
+                     if self._keyframes is None
+                     else self._keyframes.trajectory_slots(self._path_stamps))
             self._path_slots_of = (state, slots)
         return self._path_slots_of[1].copy()
 
@@ -661,7 +407,7 @@ class ConsistencyMonitor:
         path_slots = self._path_slots()
         moved = self._move_keyframes(path_slots)
         new = self._register(path_slots)
-        self._unmatched = int(np.count_nonzero(self._path_slots() == _NO_SCAN))
+        self._unmatched = int(np.count_nonzero(self._path_slots() == NO_SCAN))
         changed = np.union1d(moved, new).astype(np.int64)
         measured = self._measure(changed, new) if changed.size else 0
         self._last = UpdateSummary(new_keyframes=int(new.size), moved_keyframes=int(moved.size),
@@ -687,8 +433,8 @@ class ConsistencyMonitor:
         """New keyframes for poses whose scan is buffered and that are new viewpoints; their
         incremental poses. The scans of the other poses are folded (counted, not kept)."""
         new, folded = [], []
-        unregistered = np.flatnonzero(path_slots == _NO_SCAN)
-        matches = self._buffer_matches(self._path_stamps[unregistered])
+        unregistered = np.flatnonzero(path_slots == NO_SCAN)
+        matches = self._buffer.matches(self._path_stamps[unregistered])
         # trajectory indices of keyframes before this pass; the pass goes in index order, so
         # a keyframe it registers is the nearest earlier one of every later pose
         known = np.flatnonzero(path_slots >= 0)
@@ -703,7 +449,7 @@ class ConsistencyMonitor:
             if not self._new_viewpoint(index, earlier):
                 self._buffer.pop(float(buffered))
                 folded.append(float(buffered))
-                path_slots[index] = _FOLDED
+                path_slots[index] = FOLDED
                 continue
             pose = self._path_poses[index]
             anchor = earlier if earlier >= 0 else later
@@ -713,13 +459,12 @@ class ConsistencyMonitor:
             path_slots[index] = slot
             registered = int(index)
             new.append(slot)
-        if folded:
-            self._folded = np.sort(np.concatenate([self._folded, folded]))
+        self._keyframes.fold(folded)
         return np.asarray(new, dtype=np.int64)
 
     def _new_viewpoint(self, index: int, earlier: int) -> bool:
         """Whether pose `index` of the trajectory is a viewpoint: far enough from the nearest
-        earlier keyframe of the trajectory, pose `earlier` (core/viewpoints.py). A pose with
+        earlier keyframe of the trajectory, pose `earlier` (core/geometry/_viewpoints.py). A pose with
         no earlier keyframe (-1: the first, or a late first scan) always is."""
         if earlier < 0:
             return True
@@ -750,88 +495,42 @@ class ConsistencyMonitor:
             keyframes.ranges[missing], sensor_poses(poses[missing], self._offset), self._model))
 
     def _measure_keys(self, keys: np.ndarray, incremental: bool = False) -> PairMeasures:
-        pairs = _key_slots(keys)
+        """Measures of the pairs `keys` at the current (or incremental) poses."""
+        pairs = key_slots(keys)
         involved = np.unique(pairs)
         scans = self._scans(involved, incremental)
-        local = np.searchsorted(involved, pairs)
-        parts = []
-        for start in range(0, len(local), MEASURE_CHUNK):
-            chunk = local[start:start + MEASURE_CHUNK]
-            with _threads_for(len(chunk)):
-                parts.append(pair_measures(scans, chunk, keep_largest=self._keep))
-        return PairMeasures(*(np.concatenate([getattr(part, name) for part in parts])
-                              for name in ('pairs', 'distance_sum', 'point_count', 'largest')))
+        return measure_pairs(scans, np.searchsorted(involved, pairs), self._keep,
+                             chunk=MEASURE_CHUNK)
 
     def _measure(self, changed: np.ndarray, new: np.ndarray) -> int:
         """Measure pairs touching `changed` slots (`new` among them), update the local
-        measures; the tests run when the next snapshot is taken."""
+        measures; the tests run at the next evaluation."""
         keyframes = self._keyframes
         placed = self._scans(changed)
         self._index.update(changed, placed.extents)
         # new keyframes have no pairs yet: only moved ones lose theirs (a test over every pair)
         self._current.drop_slots(np.setdiff1d(changed, new), keyframes.count)
         self._current.mark_new(new)
-        touching = self._within_budget(self._index.pairs_touching(changed), new)
-        keys = np.unique(_pair_keys(touching[:, 0], touching[:, 1]))
+        touching = self._budget.select(
+            self._index.pairs_touching(changed), new, keyframes.count,
+            lambda slots: sensor_poses(keyframes.poses[slots], self._offset))
+        keys = np.unique(pair_keys(touching[:, 0], touching[:, 1]))
         measured = 0
         if keys.size:
             measures = self._measure_keys(keys)
             keep = measures.point_count > 0  # pairs without points carry no evidence
-            self._current.insert(keys[keep], _subset(measures, keep))
+            self._current.insert(keys[keep], measures.take(keep))
             measured += int(keys.size)
         order = keyframes.order()
-        measured += self._update_local(order, _rank_of_slot(order)[new])
-        self._result = None  # the statistics run once per snapshot, not per update
+        measured += self._update_local(order, rank_of_slot(order)[new])
+        self._result = None  # the statistics run once per evaluation, not per update
         return measured
 
-    def _within_budget(self, pairs: np.ndarray, new: np.ndarray) -> np.ndarray:
-        """The pairs (i, j), i < j slots, the budget of j keeps: with every earlier slot, or,
-        when more than `max_partners` overlapped j on arrival, with the nearest keyframes of
-        each earlier visit of its place (_nearest_of_each_visit), chosen then so that moves
-        re-measure the same pairs. Every visit keeps pairs, so the failures of a revisit
-        show whatever the budget; the local scales have pairs of their own (_update_local)."""
-        budget, keyframes = self.settings.max_partners, self._keyframes
-        if budget and new.size and pairs.size:
-            later = pairs[:, 1]
-            counts = np.bincount(later, minlength=keyframes.count)
-            crowded = new[counts[new] > budget]
-            if crowded.size:
-                kept = [self._nearest_of_each_visit(pairs[later == slot, 0], slot, budget)
-                        for slot in crowded]
-                keyframes.budgeted[crowded] = True
-                self._kept_partners = _sorted_insert(self._kept_partners, np.concatenate(kept))
-        budgeted = keyframes.budgeted[pairs[:, 1]]
-        if not budgeted.any():
-            return pairs
-        keep = ~budgeted
-        keep[budgeted] = _sorted_contains(self._kept_partners,
-                                          _pair_keys(pairs[budgeted, 0], pairs[budgeted, 1]))
-        return pairs[keep]
-
-    def _nearest_of_each_visit(self, partners: np.ndarray, slot: int, budget: int
-                               ) -> np.ndarray:
-        """Pair keys of `slot` with the nearest of its earlier `partners` in each visit: runs
-        of partners at most _VISIT_GAP slots apart (one pass through the place) share the
-        budget evenly, at least one pair each."""
-        partners = np.unique(partners)
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(partners) > _VISIT_GAP) + 1])
-        visit = np.zeros(partners.size, dtype=np.int64)
-        visit[starts[1:]] = 1
-        visit = np.cumsum(visit)
-        quota = max(budget // starts.size, 1)
-        laser = sensor_poses(self._keyframes.poses[np.append(partners, slot)], self._offset)
-        distance = np.hypot(*(laser[:-1, :2] - laser[-1, :2]).T)
-        order = np.lexsort((distance, visit))  # by visit, nearest first
-        rank = np.empty(partners.size, dtype=np.int64)
-        rank[order] = np.arange(partners.size) - starts[visit[order]]
-        chosen = partners[rank < quota]
-        return _pair_keys(chosen, np.full(chosen.size, slot))
-
-    def _evaluate(self) -> ConsistencyResult | None:
+    def _test(self) -> ConsistencyResult | None:
         """The test on the current measures (computed at most once per change).
 
         The statistics cover every pair of the map; a burst of updates (a Path with late
-        scans, a node catching up) costs one evaluation when its snapshot is taken. While
+        scans, a node catching up) costs one test, at its evaluation. While
         keyframes only arrive in stamp order and none moved, only the new pairs and those of
         scans whose scale changed are tested again (evaluate_pairs' `previous`).
         """
@@ -839,8 +538,8 @@ class ConsistencyMonitor:
             keyframes = self._keyframes
             order = keyframes.order()
             # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
-            in_order = np.array_equal(order, np.arange(keyframes.count))
-            ranks = None if in_order else _rank_of_slot(order)
+            in_order = keyframes.in_stamp_order()
+            ranks = None if in_order else rank_of_slot(order)
             scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters,
                                   robust=self._local.robust())
             cache, previous = self._current, None
@@ -857,74 +556,12 @@ class ConsistencyMonitor:
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
         """Measures at the incremental poses of every pair within the local window."""
-        half = self.parameters.local_reach
-        count = order.size
-        appended = new_ranks.size == 0 or new_ranks.min() >= count - new_ranks.size
-        # Keyframes appended in stamp order only add pairs; an insertion reshapes windows.
-        ranks = np.arange(count - new_ranks.size if appended else 0, count)
-        second = np.repeat(ranks, half)
-        first = second - np.tile(np.arange(1, half + 1), ranks.size)
-        inside = first >= 0
-        required = np.unique(_pair_keys(order[first[inside]], order[second[inside]]))
-        if not appended:
+        required, appended = local_pair_keys(order, new_ranks, self.parameters.local_reach)
+        if not appended:  # windows reshaped: the pairs that left them go
             self._local.retain(required)
             required = required[~np.isin(required, self._local.keys)]
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
 
-
-def _read_only(array: np.ndarray) -> np.ndarray:
-    view = array.view()
-    view.setflags(write=False)
-    return view
-
-
-def _claimed_twice(slots: np.ndarray, stamps: np.ndarray, slot_stamps: np.ndarray
-                   ) -> np.ndarray:
-    """Poses that lose their keyframe slot to a pose nearer its stamp.
-
-    Two poses within the stamp tolerance of one keyframe (scans stamped microseconds apart)
-    would both move it, to two places, on every update; the nearest keeps it (the first of
-    equals), the others are poses without a keyframe (their own scan is matched or folded).
-    """
-    matched = np.flatnonzero(slots >= 0)
-    losing = np.zeros(slots.size, dtype=bool)
-    if matched.size < 2:
-        return losing
-    offset = np.abs(stamps[matched] - slot_stamps[slots[matched]])
-    order = np.lexsort((matched, offset, slots[matched]))  # by slot, nearest first
-    repeated = np.zeros(order.size, dtype=bool)
-    repeated[1:] = slots[matched[order[1:]]] == slots[matched[order[:-1]]]
-    losing[matched[order[repeated]]] = True
-    return losing
-
-
-def _sorted_insert(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """`sorted_keys` with the `keys` it lacks, sorted: a merge, so that a keyframe's
-    arrival costs its own keys and a copy, not a sort of every key of the map."""
-    keys = np.unique(keys)
-    keys = keys[~_sorted_contains(sorted_keys, keys)]
-    return np.insert(sorted_keys, np.searchsorted(sorted_keys, keys), keys)
-
-
-def _sorted_contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Whether each of `keys` is in `sorted_keys` (binary search: no pass over the map)."""
-    where = np.searchsorted(sorted_keys, keys)
-    inside = where < sorted_keys.size
-    found = np.zeros(keys.shape, dtype=bool)
-    found[inside] = sorted_keys[where[inside]] == keys[inside]
-    return found
-
-
-def _rank_of_slot(order: np.ndarray) -> np.ndarray:
-    """The stamp-order rank of every slot, from the slots in stamp order."""
-    ranks = np.empty(order.size, dtype=np.int64)
-    ranks[order] = np.arange(order.size)
-    return ranks
-
-
-def _subset(measures: PairMeasures, keep: np.ndarray) -> PairMeasures:
-    return PairMeasures(pairs=measures.pairs[keep], distance_sum=measures.distance_sum[keep],
-                        point_count=measures.point_count[keep], largest=measures.largest[keep])
 

@@ -60,7 +60,7 @@ def test_standing_still_adds_no_pairs_no_flags_and_no_cost(intel):
     for stamp, scan in zip(stamps, ranges):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps, poses)
-    before = monitor.snapshot()
+    before = monitor.evaluate()
     # the robot stands still for 200 scans (noise on the ranges, jitter on the pose)
     rng = np.random.default_rng(0)
     still_stamps = stamps[-1] + 0.05 * np.arange(1, 201)
@@ -69,7 +69,7 @@ def test_standing_still_adds_no_pairs_no_flags_and_no_cost(intel):
         monitor.add_scan(stamp, ranges[-1] + rng.normal(0.0, 0.01, ranges.shape[1]), model)
     summary = monitor.update_trajectory(np.concatenate([stamps, still_stamps]),
                                         np.concatenate([poses, still_poses]))
-    after = monitor.snapshot()
+    after = monitor.evaluate()
     assert summary.new_keyframes == 0 and summary.measured_pairs == 0
     assert after.folded_scans == before.folded_scans + 200
     assert after.keyframe_count == before.keyframe_count
@@ -88,4 +88,4 @@ def test_every_keyframe_is_tested_when_viewpoints_are_off(intel):
     for stamp, scan in zip(stamps, ranges):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps, poses)
-    assert monitor.keyframe_count == len(stamps) and monitor.snapshot().folded_scans == 0
+    assert monitor.keyframe_count == len(stamps) and monitor.evaluate().folded_scans == 0

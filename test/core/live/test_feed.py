@@ -40,10 +40,10 @@ def test_keyframe_estimates_give_the_batch_verdict(intel):
     # the viewpoints check selects on the same poses (they never moved)
     parameters = ConsistencyParameters()
     rows = viewpoint_rows(poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
-    assert 0 < SCANS - rows.size == feed.monitor.snapshot().folded_scans
-    np.testing.assert_array_equal(feed.monitor.snapshot().stamps, stamps[rows])
+    assert 0 < SCANS - rows.size == feed.monitor.evaluate().folded_scans
+    np.testing.assert_array_equal(feed.monitor.evaluate().stamps, stamps[rows])
     oracle = check_consistency(ScanSet.from_ranges(ranges[rows], poses[rows], model))
-    result = feed.monitor.snapshot().result
+    result = feed.monitor.evaluate().result
     np.testing.assert_array_equal(result.inconsistent, oracle.inconsistent)
     assert result.failed_pair_count == oracle.failed_pair_count
 
@@ -58,7 +58,7 @@ def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
         feed.apply(PoseSample(stamp=float(stamp), pose=pose))
     keyframes = feed.monitor.keyframe_count
     assert 1 < keyframes < SCANS  # the robot does not move 0.3 m between every scan
-    np.testing.assert_allclose(feed.monitor.snapshot().poses, np.array(feed.keyframer.poses))
+    np.testing.assert_allclose(feed.monitor.evaluate().poses, np.array(feed.keyframer.poses))
     refused = feed.apply(KeyframeEstimate(stamps=stamps, poses=poses))
     assert refused.summary is None and "pose_source is 'odometry'" in refused.warnings[0]
 
@@ -66,23 +66,23 @@ def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
 def test_the_estimate_stamp_names_the_last_estimate_that_changed_the_map(intel):
     stamps, ranges, poses, model = intel
     feed = MonitorFeed()
-    assert math.isnan(feed.snapshot().estimate_stamp)  # no estimate yet
+    assert math.isnan(feed.evaluate().estimate_stamp)  # no estimate yet
     for scan in _scan_records(stamps, ranges, model):
         feed.apply(scan)
     feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1000.5))
-    assert feed.snapshot().estimate_stamp == 1000.5
+    assert feed.evaluate().estimate_stamp == 1000.5
     # the same estimate again changes nothing: the verdict on it still judged 1000.5
     assert feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1001.0)).summary is None
-    assert feed.snapshot().estimate_stamp == 1000.5
+    assert feed.evaluate().estimate_stamp == 1000.5
     moved = poses.copy()
     moved[SCANS // 2:, 0] += 0.5  # a loop closure moves half of the keyframes
     feed.apply(KeyframeEstimate(stamps=stamps, poses=moved, stamp=1002.0))
-    snapshot = feed.snapshot()
+    snapshot = feed.evaluate()
     assert snapshot.estimate_stamp == 1002.0
-    np.testing.assert_array_equal(snapshot.poses, feed.monitor.snapshot().poses)
+    np.testing.assert_array_equal(snapshot.poses, feed.monitor.evaluate().poses)
     # without a header stamp (a bridge's output): the newest keyframe's stamp
     feed.apply(KeyframeEstimate(stamps=stamps, poses=poses))
-    assert feed.snapshot().estimate_stamp == stamps.max()
+    assert feed.evaluate().estimate_stamp == stamps.max()
 
 
 def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
@@ -94,9 +94,9 @@ def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
         feed.apply(scan)
     feed.apply(KeyframeEstimate(stamps=stamps[:-1], poses=poses[:-1], stamp=500.0))
     waiting = feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=501.0))
-    assert waiting.summary is None and feed.snapshot().estimate_stamp == 500.0
+    assert waiting.summary is None and feed.evaluate().estimate_stamp == 500.0
     assert feed.apply(scans[-1]).summary is not None  # the last keyframe, of estimate 501
-    snapshot = feed.snapshot()
+    snapshot = feed.evaluate()
     assert snapshot.keyframe_count == SCANS and snapshot.estimate_stamp == 501.0
 
 
@@ -107,7 +107,7 @@ def test_single_poses_name_their_estimate_by_the_newest_keyframe(intel):
     for scan, stamp, pose in zip(_scan_records(stamps, ranges, model), stamps, poses):
         feed.apply(scan)
         feed.apply(PoseSample(stamp=float(stamp), pose=pose))
-    snapshot = feed.snapshot()
+    snapshot = feed.evaluate()
     assert snapshot.estimate_stamp == snapshot.stamps.max()
 
 
@@ -254,7 +254,7 @@ def test_slam_toolbox_poses_and_markers_follow_a_loop_closure(slam_toolbox_strea
         assert applied.warnings == ()
         updates += applied.summary is not None
     assert updates == len(stream.snapshots)  # each snapshot, and only a snapshot, updates
-    snapshot = feed.monitor.snapshot()
+    snapshot = feed.monitor.evaluate()
     np.testing.assert_array_equal(snapshot.stamps, stream.stamps)
     # positions from the markers; the correction's 0.1 rad recovered from the rigid motion
     np.testing.assert_allclose(snapshot.poses[:, :2], stream.final[:, :2], atol=1e-9)
@@ -271,7 +271,7 @@ def test_slam_toolbox_poses_and_markers_follow_a_loop_closure(slam_toolbox_strea
                             model=stream.model))
         graph = stream.final if index >= stream.loop else stream.truth
         path.apply(KeyframeEstimate(stamps=stream.stamps[ids], poses=graph[ids]))
-    expected = path.monitor.snapshot().result
+    expected = path.monitor.evaluate().result
     assert expected.inconsistent.any()  # the wrong loop closure shows
     np.testing.assert_array_equal(snapshot.result.inconsistent, expected.inconsistent)
     assert snapshot.result.failed_pair_count == expected.failed_pair_count
@@ -329,7 +329,7 @@ def test_slam_toolbox_snapshots_overtaking_poses_give_the_log_order_verdict(
     for records in (in_order, overtaking):
         feed = MonitorFeed(settings=FeedSettings(pose_source='slam_toolbox'))
         assert all(feed.apply(record).warnings == () for record in records)
-        results.append(feed.monitor.snapshot())
+        results.append(feed.monitor.evaluate())
     np.testing.assert_array_equal(results[0].poses, results[1].poses)
     np.testing.assert_array_equal(results[0].incremental_poses, results[1].incremental_poses)
     np.testing.assert_array_equal(results[0].result.inconsistent, results[1].result.inconsistent)

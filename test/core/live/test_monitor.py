@@ -82,7 +82,7 @@ def _dragged(poses: np.ndarray, first: int) -> np.ndarray:
 
 def test_streaming_equals_the_batch_test_in_stamp_order(intel, streamed):
     stamps, ranges, poses, model = _by_stamp(intel)
-    snapshot = streamed.snapshot()
+    snapshot = streamed.evaluate()
     np.testing.assert_array_equal(snapshot.stamps, stamps)
     np.testing.assert_allclose(snapshot.poses, poses)
     _assert_same_verdict(snapshot.result, _oracle(ranges, poses, model))
@@ -100,7 +100,7 @@ def test_loop_closure_measures_only_moved_pairs(intel):
         monitor.add_scan(stamp, scan, model)
     first = monitor.update_trajectory(stamps, poses)
     assert first.new_keyframes == len(stamps)
-    earlier = monitor.snapshot()
+    earlier = monitor.evaluate()
     shared = ('pairs', 'distance_sum', 'point_count', 'trimmed_sum', 'trimmed_count')
     kept = [getattr(earlier.result, name).copy() for name in shared] + [earlier.poses.copy()]
     with pytest.raises(ValueError, match='read-only'):  # shared with the monitor, not copied
@@ -113,17 +113,17 @@ def test_loop_closure_measures_only_moved_pairs(intel):
     for old, new in zip(kept, [getattr(earlier.result, name) for name in shared]
                         + [earlier.poses]):
         np.testing.assert_array_equal(old, new)
-    result = monitor.snapshot().result
+    result = monitor.evaluate().result
     oracle = _oracle(ranges, moved, model, reference_poses=poses)
     _assert_same_verdict(result, oracle)
     assert result.failed_pair_count > 0
     # The incremental solution is the first-seen one: the loop closure leaves it alone.
-    np.testing.assert_allclose(se2.relative(monitor.snapshot().incremental_poses[:-1],
-                                            monitor.snapshot().incremental_poses[1:]),
+    np.testing.assert_allclose(se2.relative(monitor.evaluate().incremental_poses[:-1],
+                                            monitor.evaluate().incremental_poses[1:]),
                                se2.relative(poses[:-1], poses[1:]), atol=1e-9)
     recomputed = monitor.recompute()
     assert recomputed.measured_pairs >= summary.measured_pairs
-    _assert_same_verdict(monitor.snapshot().result, oracle)
+    _assert_same_verdict(monitor.evaluate().result, oracle)
 
 
 def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
@@ -138,7 +138,7 @@ def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
         placed = poses if end <= 50 else moved  # the loop closure comes with scan 60
         monitor.update_trajectory(stamps[:end], placed[:end])
         reference = None if end <= 50 else poses[:end]
-        _assert_same_verdict(monitor.snapshot().result,
+        _assert_same_verdict(monitor.evaluate().result,
                              _oracle(ranges[:end], placed[:end], model, reference))
 
 
@@ -150,7 +150,7 @@ def test_a_partner_budget_thins_the_pairs_of_dense_keyframes_stably(intel):
     overlapping = full.point_count > 0
     oracle = {tuple(p): m for p, m in zip(full.pairs[overlapping].tolist(),
                                           full.distance_sum[overlapping])}
-    kept = monitor.snapshot().result
+    kept = monitor.evaluate().result
     later_partners = np.bincount(kept.pairs[:, 1], minlength=len(stamps))
     assert np.bincount(full.pairs[overlapping][:, 1]).max() > 3 * budget  # the budget binds
     assert later_partners.mean() <= budget and later_partners.max() <= 2 * budget
@@ -162,7 +162,7 @@ def test_a_partner_budget_thins_the_pairs_of_dense_keyframes_stably(intel):
     # a loop closure re-measures the pairs of the moved keyframes, leaves the others alone
     half = len(stamps) // 2
     monitor.update_trajectory(stamps, _dragged(poses, half))
-    after = monitor.snapshot().result
+    after = monitor.evaluate().result
     unmoved = {tuple(p) for p in kept.pairs.tolist() if p[1] < half}
     assert {tuple(p) for p in after.pairs.tolist() if p[1] < half} == unmoved
     assert np.bincount(after.pairs[:, 1], minlength=len(stamps)).mean() <= budget
@@ -194,11 +194,11 @@ def test_scans_stamped_microseconds_apart_do_not_move_their_keyframe(intel):
     for stamp, scan in zip(twins, np.repeat(ranges[:12], 2, axis=0)):
         monitor.add_scan(stamp, scan, model)
     first = monitor.update_trajectory(twins, twin_poses)
-    expected = single.snapshot()
+    expected = single.evaluate()
     assert first.new_keyframes == expected.keyframe_count  # every second copy is folded
-    assert monitor.snapshot().folded_scans == expected.folded_scans + 12
-    np.testing.assert_array_equal(monitor.snapshot().stamps, expected.stamps)
-    np.testing.assert_array_equal(monitor.snapshot().poses, expected.poses)
+    assert monitor.evaluate().folded_scans == expected.folded_scans + 12
+    np.testing.assert_array_equal(monitor.evaluate().stamps, expected.stamps)
+    np.testing.assert_array_equal(monitor.evaluate().poses, expected.poses)
     again = monitor.update_trajectory(twins, twin_poses)
     assert again.moved_keyframes == 0 and again.measured_pairs == 0
     assert again.unmatched_poses == 0
@@ -214,7 +214,7 @@ def test_new_keyframe_after_a_loop_closure_is_chained_on_its_predecessor(intel):
     correction = np.array([1.0, -2.0, 0.3])
     corrected = se2.compose(np.broadcast_to(correction, (6, 3)), poses[:6])
     monitor.update_trajectory(stamps[:6], corrected)
-    incremental = monitor.snapshot().incremental_poses
+    incremental = monitor.evaluate().incremental_poses
     np.testing.assert_allclose(incremental[:5], poses[:5])
     np.testing.assert_allclose(incremental[5], se2.compose(poses[4],
                                                            se2.relative(poses[4], poses[5])))
@@ -231,7 +231,7 @@ def test_pose_before_scan_registers_on_refresh(intel):
     assert monitor.pending
     late = monitor.refresh()
     assert late.new_keyframes == 1 and late.unmatched_poses == 1
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     np.testing.assert_allclose(snapshot.stamps, [stamps[0], stamps[2] + 2e-4])
     np.testing.assert_allclose(snapshot.incremental_poses, poses[[0, 2]])
 
@@ -249,7 +249,7 @@ def test_late_first_scan_is_chained_on_its_successor(intel):
     summary = monitor.update_trajectory(stamps[:4], corrected)
     assert summary.new_keyframes == 1 and summary.moved_keyframes == 3
     # the incremental solution stays in the frame of the first trajectory
-    np.testing.assert_allclose(monitor.snapshot().incremental_poses, poses[:4], atol=1e-9)
+    np.testing.assert_allclose(monitor.evaluate().incremental_poses, poses[:4], atol=1e-9)
 
 
 def test_scan_buffer_is_bounded_and_drops_the_oldest(intel):
@@ -257,12 +257,12 @@ def test_scan_buffer_is_bounded_and_drops_the_oldest(intel):
     monitor = ConsistencyMonitor(settings=MonitorSettings(max_buffered_scans=5))
     for stamp, scan in zip(stamps[:12], ranges[:12]):
         monitor.add_scan(stamp, scan, model)
-    assert monitor.snapshot().buffered_scans == 5
+    assert monitor.evaluate().buffered_scans == 5
     summary = monitor.update_trajectory(stamps[:12], poses[:12])
     assert summary.new_keyframes == 5 and summary.unmatched_poses == 7
-    np.testing.assert_array_equal(monitor.snapshot().stamps, stamps[7:12])
+    np.testing.assert_array_equal(monitor.evaluate().stamps, stamps[7:12])
     # the seven dropped scans are counted, and the poses that name them say so
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     assert snapshot.dropped_scans == 7 and snapshot.poses_without_scan == 7
 
 
@@ -272,9 +272,9 @@ def test_a_pose_whose_scan_never_came_is_reported_once_newer_scans_arrive(intel)
     for index in (0, 1, 3):  # scan 2 is lost on the way
         monitor.add_scan(stamps[index], ranges[index], model)
     monitor.update_trajectory(stamps[:4], poses[:4])
-    assert monitor.snapshot().poses_without_scan == 1
+    assert monitor.evaluate().poses_without_scan == 1
     monitor.update_trajectory(stamps[:5], poses[:5])  # pose 4 waits: its scan may still come
-    assert monitor.snapshot().poses_without_scan == 1 and monitor.snapshot().unmatched_poses == 2
+    assert monitor.evaluate().poses_without_scan == 1 and monitor.evaluate().unmatched_poses == 2
 
 
 def test_bad_scans_raise_and_keep_the_state(intel):
@@ -282,7 +282,7 @@ def test_bad_scans_raise_and_keep_the_state(intel):
     monitor = ConsistencyMonitor()
     monitor.add_scan(stamps[0], ranges[0], model)
     monitor.update_trajectory(stamps[:1], poses[:1])
-    before = monitor.snapshot()
+    before = monitor.evaluate()
     other = SensorModel(angle_min=model.angle_min + 0.1, angle_increment=model.angle_increment,
                         max_range=model.max_range)
     cases = [
@@ -299,12 +299,12 @@ def test_bad_scans_raise_and_keep_the_state(intel):
     for arguments, message in cases:
         with pytest.raises(ValueError, match=message):
             monitor.add_scan(*arguments)
-    after = monitor.snapshot()
+    after = monitor.evaluate()
     assert after.buffered_scans == before.buffered_scans == 0
     np.testing.assert_array_equal(after.stamps, before.stamps)
     # NaN and inf beams are free space, not an error
     monitor.add_scan(stamps[1], np.where(np.arange(ranges.shape[1]) % 2, np.nan, np.inf), model)
-    assert monitor.snapshot().buffered_scans == 1
+    assert monitor.evaluate().buffered_scans == 1
 
 
 def test_bad_trajectories_are_refused_or_cleaned(intel):
@@ -325,7 +325,7 @@ def test_bad_trajectories_are_refused_or_cleaned(intel):
     assert len(summary.warnings) == 2
     assert any('non-finite' in w for w in summary.warnings)
     assert any('duplicated stamp' in w for w in summary.warnings)
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     np.testing.assert_array_equal(snapshot.stamps, stamps[:2])
     np.testing.assert_allclose(snapshot.poses, poses[:2])  # the first of the duplicates wins
 
@@ -384,7 +384,7 @@ def test_laser_offset_places_the_scans(intel):
     for stamp, scan in zip(stamps[:30], ranges[:30]):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps[:30], keyframe_poses)
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     np.testing.assert_allclose(snapshot.scans().sensor_poses, poses[:30], atol=1e-9)
     _assert_same_verdict(snapshot.result, _oracle(ranges[:30], poses[:30], model))
 
@@ -396,7 +396,7 @@ def test_inconsistent_endpoints_are_the_points_inside_the_other_scan(intel):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps, poses)
     monitor.update_trajectory(stamps, _dragged(poses, len(stamps) // 2))
-    snapshot = monitor.snapshot()
+    snapshot = monitor.evaluate()
     scans, result = snapshot.scans(), snapshot.result
     assert not result.consistent
     points = inconsistent_endpoints(scans, result, max_pairs=3)

@@ -1,0 +1,159 @@
+"""The monitor's keyframe store: per-keyframe stamps, poses and scans, the stamps of the scans
+folded into an earlier viewpoint, and the matching of stamps to keyframes.
+
+Invariants:
+- a keyframe is identified by its slot, its registration index: slots are 0..count-1, never
+  reused or renumbered;
+- a slot's stamp and ranges never change once appended (views of them stay valid); its pose
+  changes when the trajectory moves it, its incremental pose never;
+- `order()` holds the slots in stamp order (stable for equal stamps) at every moment;
+- the folded stamps are sorted and are no keyframe's.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from map_consistency_ros.core.geometry import read_only, with_rows
+
+# A trajectory pose's slot: its keyframe's, or one of these.
+NO_SCAN = -1  # no scan registered for it (yet)
+FOLDED = -2  # its scan was folded into the previous viewpoint (core/geometry/_viewpoints.py)
+
+
+def match_stamps(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
+                 order: np.ndarray | None = None) -> np.ndarray:
+    """The stamp nearest to each query within a tolerance.
+
+    Parameters
+    ----------
+    queries: (Q,) seconds.
+    stamps: (S,) seconds, in any order.
+    tolerance: the largest |query - stamp| of a match, seconds.
+    order: the stamps' stable argsort when the caller keeps it (else computed).
+
+    Returns
+    -------
+    (Q,) int64: the index into `stamps` of each query's match, -1 where none.
+    """
+    found = np.full(queries.size, -1, dtype=np.int64)
+    if stamps.size == 0 or queries.size == 0:
+        return found
+    order = np.argsort(stamps, kind='stable') if order is None else order
+    ordered = stamps[order]
+    right = np.clip(np.searchsorted(ordered, queries), 0, ordered.size - 1)
+    left = np.clip(right - 1, 0, ordered.size - 1)
+    nearer = np.where(np.abs(ordered[left] - queries) < np.abs(ordered[right] - queries),
+                      left, right)
+    close = np.abs(ordered[nearer] - queries) <= tolerance
+    found[close] = order[nearer[close]]
+    return found
+
+
+def rank_of_slot(order: np.ndarray) -> np.ndarray:
+    """The stamp-order rank of every slot, from the slots in stamp order (Keyframes.order)."""
+    ranks = np.empty(order.size, dtype=np.int64)
+    ranks[order] = np.arange(order.size)
+    return ranks
+
+
+def _claimed_twice(slots: np.ndarray, stamps: np.ndarray, slot_stamps: np.ndarray
+                   ) -> np.ndarray:
+    """Poses that lose their keyframe slot to a pose nearer its stamp.
+
+    Two poses within the stamp tolerance of one keyframe (scans stamped microseconds apart)
+    would both move it, to two places, on every update; the nearest keeps it (the first of
+    equals), the others are poses without a keyframe (their own scan is matched or folded).
+    """
+    matched = np.flatnonzero(slots >= 0)
+    losing = np.zeros(slots.size, dtype=bool)
+    if matched.size < 2:
+        return losing
+    offset = np.abs(stamps[matched] - slot_stamps[slots[matched]])
+    order = np.lexsort((matched, offset, slots[matched]))  # by slot, nearest first
+    repeated = np.zeros(order.size, dtype=bool)
+    repeated[1:] = slots[matched[order[1:]]] == slots[matched[order[:-1]]]
+    losing[matched[order[repeated]]] = True
+    return losing
+
+
+class Keyframes:
+    """Growable per-keyframe arrays indexed by slot, and the folded scans' stamps.
+
+    The arrays `stamps`, `poses`, `incremental` and `ranges` have at least `count` rows; rows
+    from `count` on are spare capacity. A pose matches a keyframe or a folded stamp within
+    `tolerance` seconds.
+    """
+
+    def __init__(self, beams: int, tolerance: float) -> None:
+        self.count = 0
+        self.tolerance = tolerance
+        self.stamps = np.zeros(16)
+        self.poses = np.zeros((16, 3))
+        self.incremental = np.zeros((16, 3))
+        self.ranges = np.zeros((16, beams))
+        # slots in stamp order, kept: every scan and every trajectory is matched against them
+        self._order = np.zeros(0, dtype=np.int64)
+        self.folded = np.zeros(0)  # stamps of the scans folded into their previous viewpoint
+
+    @property
+    def beams(self) -> int:
+        """K, the beams of every keyframe's scan."""
+        return int(self.ranges.shape[1])
+
+    def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
+               ranges: np.ndarray) -> int:
+        """Register a keyframe; returns its slot (the next one)."""
+        if self.count == self.stamps.size:
+            rows = 2 * self.count
+            self.stamps, self.poses, self.incremental, self.ranges = (
+                with_rows(array, rows)
+                for array in (self.stamps, self.poses, self.incremental, self.ranges))
+        slot = self.count
+        self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
+        self.ranges[slot] = ranges
+        self.count += 1
+        if self._order.size == slot and (slot == 0 or stamp >= self.stamps[self._order[-1]]):
+            self._order = np.append(self._order, slot)  # the usual case: in stamp order
+        else:
+            self._order = np.argsort(self.stamps[:self.count], kind='stable')
+        return slot
+
+    def fold(self, stamps: list[float]) -> None:
+        """Record the stamps of scans folded into their previous viewpoint."""
+        if stamps:
+            self.folded = np.sort(np.concatenate([self.folded, stamps]))
+
+    def order(self) -> np.ndarray:
+        """Slots in stamp order (read-only)."""
+        return read_only(self._order)
+
+    def in_stamp_order(self) -> bool:
+        """Whether every keyframe arrived in stamp order (then rank == slot)."""
+        return bool(np.array_equal(self._order, np.arange(self.count)))
+
+    def match(self, queries: np.ndarray) -> np.ndarray:
+        """The slot whose stamp is nearest to each query within the tolerance, -1 where none."""
+        return match_stamps(queries, self.stamps[:self.count], self.tolerance, self._order)
+
+    def holds(self, stamp: float) -> bool:
+        """Whether `stamp` is a keyframe's or a folded scan's (within the tolerance)."""
+        query = np.array([stamp])
+        return bool(self.match(query)[0] >= 0 or self._folded_match(query)[0])
+
+    def trajectory_slots(self, stamps: np.ndarray) -> np.ndarray:
+        """For each pose stamp (sorted) of a trajectory: its keyframe slot, FOLDED or NO_SCAN.
+
+        Of several poses within the tolerance of one keyframe only the nearest holds its slot
+        (_claimed_twice); a pose without a keyframe whose stamp is a folded scan's is FOLDED.
+        """
+        slots = (np.full(stamps.size, NO_SCAN, dtype=np.int64) if self.count == 0
+                 else self.match(stamps))
+        if self.count:
+            slots[_claimed_twice(slots, stamps, self.stamps)] = NO_SCAN
+        if self.folded.size:
+            slots[self._folded_match(stamps) & (slots == NO_SCAN)] = FOLDED
+        return slots
+
+    def _folded_match(self, stamps: np.ndarray) -> np.ndarray:
+        return match_stamps(stamps, self.folded, self.tolerance,
+                            np.arange(self.folded.size)) >= 0
