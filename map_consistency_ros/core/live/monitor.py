@@ -464,8 +464,8 @@ class ConsistencyMonitor:
 
     def _new_viewpoint(self, index: int, earlier: int) -> bool:
         """Whether pose `index` of the trajectory is a viewpoint: far enough from the nearest
-        earlier keyframe of the trajectory, pose `earlier` (core/geometry/_viewpoints.py). A pose with
-        no earlier keyframe (-1: the first, or a late first scan) always is."""
+        earlier keyframe of the trajectory, pose `earlier` (core/geometry/_viewpoints.py). A
+        pose with no earlier keyframe (-1: the first, or a late first scan) always is."""
         if earlier < 0:
             return True
         # the laser's travel, as check measures it on a log's laser poses
@@ -530,9 +530,9 @@ class ConsistencyMonitor:
         """The test on the current measures (computed at most once per change).
 
         The statistics cover every pair of the map; a burst of updates (a Path with late
-        scans, a node catching up) costs one test, at its evaluation. While
-        keyframes only arrive in stamp order and none moved, only the new pairs and those of
-        scans whose scale changed are tested again (evaluate_pairs' `previous`).
+        scans, a node catching up) costs one test, at the next evaluation. While keyframes only
+        arrive in stamp order and none moved, only the new pairs and those of scans whose scale
+        changed are tested again (evaluate_pairs' `previous`).
         """
         if self._result is None and self.keyframe_count:
             keyframes = self._keyframes
@@ -563,5 +563,3 @@ class ConsistencyMonitor:
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
-
-

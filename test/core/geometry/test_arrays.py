@@ -1,7 +1,9 @@
-"""Growing arrays by rows."""
+"""Growing arrays by rows; read-only views."""
 import numpy as np
 
-from map_consistency_ros.core.geometry import with_rows
+import pytest
+
+from map_consistency_ros.core.geometry import read_only, with_rows
 
 
 def test_rows_are_kept_and_the_new_ones_filled():
@@ -15,3 +17,12 @@ def test_rows_are_kept_and_the_new_ones_filled():
     np.testing.assert_array_equal(with_rows(array, 2), array[:2])
     flags = with_rows(np.ones(2, dtype=bool), 4)
     assert flags.tolist() == [True, True, False, False]
+
+
+def test_a_read_only_view_follows_its_owner_who_may_still_write():
+    owner = np.zeros(4)
+    view = read_only(owner[:3])
+    with pytest.raises(ValueError, match='read-only'):
+        view[0] = 1.0
+    owner[0] = 5.0  # the owner keeps writing (appends past a cached view, for example)
+    assert owner.flags.writeable and view[0] == 5.0

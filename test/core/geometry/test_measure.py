@@ -6,7 +6,7 @@ import pytest
 import shapely
 
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, SensorModel, candidate_pairs,
-                                               pair_measures, pair_measures_naive,
+                                               measure_pairs, pair_measures, pair_measures_naive,
                                                pairs_point_distances, point_distances, se2)
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -144,6 +144,35 @@ def test_measure_is_invariant_under_moving_the_whole_map():
     before, after = pair_measures(scans, pairs), pair_measures(moved, pairs)
     np.testing.assert_array_equal(before.point_count, after.point_count)
     np.testing.assert_allclose(before.distance_sum, after.distance_sum, rtol=1e-9)
+
+
+@pytest.mark.parametrize('chunk', [1, 7, 45, 1000])
+def test_measuring_in_batches_gives_the_measures_of_one_call(chunk):
+    scans = _random_scans(5, 90, False, count=10)
+    pairs = _all_pairs(scans.scan_count)[::-1]  # any order, kept
+    whole = pair_measures(scans, pairs, keep_largest=4)
+    reported = []
+    batched = measure_pairs(scans, pairs, keep_largest=4, chunk=chunk,
+                            progress=lambda done, total: reported.append((done, total)))
+    for name in ('pairs', 'distance_sum', 'point_count', 'largest'):
+        np.testing.assert_array_equal(getattr(batched, name), getattr(whole, name))
+    count = len(pairs)
+    assert reported == [(min(end, count), count) for end in range(chunk, count + chunk, chunk)]
+    none = measure_pairs(scans, np.zeros((0, 2), dtype=np.int64), keep_largest=4,
+                         progress=lambda done, total: reported.append((done, total)))
+    assert none.pairs.shape == (0, 2) and none.largest.shape == (0, 4)
+    assert reported[-1] == (0, 0)
+
+
+def test_take_picks_pairs_by_index_or_mask():
+    scans = _random_scans(3, 30, True, count=5)
+    measures = pair_measures(scans, _all_pairs(scans.scan_count), keep_largest=3)
+    mask = measures.distance_sum > np.median(measures.distance_sum)
+    assert 0 < mask.sum() < mask.size
+    for rows in (mask, np.flatnonzero(mask)[::-1]):
+        taken = measures.take(rows)
+        for name in ('pairs', 'distance_sum', 'point_count', 'largest'):
+            np.testing.assert_array_equal(getattr(taken, name), getattr(measures, name)[rows])
 
 
 def test_no_pairs_and_no_kept_distances():

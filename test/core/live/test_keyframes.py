@@ -1,0 +1,56 @@
+"""The monitor's keyframe store and scan buffer: stamp matching, twin poses, folded scans."""
+import math
+
+import numpy as np
+
+from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_stamps,
+                                                      rank_of_slot)
+from map_consistency_ros.core.live._scan_buffer import ScanBuffer
+
+
+def _store(stamps, tolerance: float = 0.5) -> Keyframes:
+    keyframes = Keyframes(beams=3, tolerance=tolerance)
+    for stamp in stamps:
+        keyframes.append(stamp, np.zeros(3), np.zeros(3), np.ones(3))
+    return keyframes
+
+
+def test_stamps_match_the_nearest_within_the_tolerance():
+    stamps = np.array([3.0, 1.0, 2.0])
+    found = match_stamps(np.array([0.4, 1.2, 1.6, 2.5, 9.0]), stamps, 0.5)
+    assert found.tolist() == [-1, 1, 2, 0, -1]  # 2.5: equally near 2 and 3, the later one
+
+
+def test_out_of_order_keyframes_keep_the_stamp_order():
+    keyframes = _store([1.0, 3.0, 2.0, 4.0])
+    assert keyframes.order().tolist() == [0, 2, 1, 3] and not keyframes.in_stamp_order()
+    assert rank_of_slot(keyframes.order()).tolist() == [0, 2, 1, 3]
+    assert _store([1.0, 2.0]).in_stamp_order()
+
+
+def test_of_two_poses_on_one_keyframe_the_nearest_holds_it_the_first_of_equals():
+    keyframes = _store([1.0, 2.0, 3.0])
+    slots = keyframes.trajectory_slots(np.array([1.0, 1.875, 2.125, 2.75, 3.25, 6.0]))
+    # 1.875 is nearer keyframe 2.0 than 2.125; 2.75 and 3.25 are equally near 3.0
+    assert slots.tolist() == [0, 1, NO_SCAN, 2, NO_SCAN, NO_SCAN]
+
+
+def test_folded_stamps_name_poses_without_a_keyframe():
+    keyframes = _store([1.0, 2.0])
+    keyframes.fold([5.0, 4.0])
+    assert keyframes.folded.tolist() == [4.0, 5.0]
+    slots = keyframes.trajectory_slots(np.array([2.0, 2.25, 4.125, 7.0]))
+    assert slots.tolist() == [1, NO_SCAN, FOLDED, NO_SCAN]
+    assert keyframes.holds(2.25) and keyframes.holds(5.25) and not keyframes.holds(6.0)
+
+
+def test_the_scan_buffer_drops_the_oldest_stamp_and_matches_the_rest():
+    buffer = ScanBuffer(capacity=2, tolerance=0.01)
+    for stamp in (2.0, 1.0, 3.0):
+        buffer.add(stamp, np.full(3, stamp))
+    assert len(buffer) == 2 and buffer.dropped == 1 and 1.0 not in buffer
+    assert buffer.newest == 3.0
+    matched = buffer.matches(np.array([2.005, 1.0, 2.5]))
+    assert matched[0] == 2.0 and math.isnan(matched[1]) and math.isnan(matched[2])
+    np.testing.assert_array_equal(buffer.pop(3.0), np.full(3, 3.0))
+    assert buffer.newest == 3.0 and len(buffer) == 1  # the newest ever added stays

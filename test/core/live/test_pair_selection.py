@@ -1,0 +1,41 @@
+"""Which pairs the monitor measures: the partner budget and the local window."""
+import numpy as np
+
+from map_consistency_ros.core.live._pair_cache import key_slots
+from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
+
+
+def _line():
+    """Laser poses of slots on a line, slot s at x = s."""
+    return lambda slots: np.column_stack([np.asarray(slots, float), np.zeros((len(slots), 2))])
+
+
+def test_a_crowded_keyframe_keeps_the_nearest_of_each_visit_stably():
+    # slot 30 arrives overlapping slots 0..5 (a first visit) and 20..27 (a second)
+    partners = np.r_[0:6, 20:28]
+    pairs = np.column_stack([partners, np.full(partners.size, 30)])
+    budget = PartnerBudget(max_partners=4)
+    kept = budget.select(pairs, np.array([30]), 31, _line())
+    assert kept.tolist() == [[4, 30], [5, 30], [26, 30], [27, 30]]  # two nearest of each visit
+    # moved later, the same pairs come back (chosen once, on arrival), whatever the poses now
+    again = budget.select(pairs[::-1], np.zeros(0, dtype=np.int64), 31, lambda slots: None)
+    assert sorted(again.tolist()) == kept.tolist()
+
+
+def test_keyframes_within_the_budget_and_no_budget_keep_every_pair():
+    pairs = np.array([[0, 3], [1, 3], [2, 3]])
+    np.testing.assert_array_equal(
+        PartnerBudget(3).select(pairs, np.array([3]), 4, _line()), pairs)
+    np.testing.assert_array_equal(
+        PartnerBudget(0).select(pairs, np.array([3]), 4, _line()), pairs)
+    assert PartnerBudget(2).select(pairs, np.array([3]), 4, _line()).tolist() == [[1, 3],
+                                                                                 [2, 3]]
+
+
+def test_the_local_window_pairs_each_keyframe_with_its_predecessors_in_stamp_order():
+    order = np.array([0, 1, 3, 2])  # slot 3 stamped before slot 2
+    keys, appended = local_pair_keys(order, np.array([3]), reach=2)
+    assert appended and key_slots(keys).tolist() == [[1, 2], [2, 3]]  # the new rank 3: slot 2
+    keys, appended = local_pair_keys(order, np.array([2]), reach=2)
+    assert not appended  # an insertion: every window pair
+    assert key_slots(keys).tolist() == [[0, 1], [0, 3], [1, 2], [1, 3], [2, 3]]
