@@ -3,11 +3,12 @@
     .venv/bin/python bench/bench_monitor.py [--scans N] [--log PATH]
 
 1. Streaming: each scan arrives, then the trajectory up to it (as the node sees them); the
-   per-keyframe update time (add_scan + update_trajectory + the test in snapshot) is reported as median and p99.
+   per-keyframe update time (add_scan + update_trajectory + the test in evaluate) is reported
+   as median and p99.
 2. Loop closure: the trajectory's last 10 %, 50 % and 100 % of poses move rigidly; the update
    time is set beside a full recompute of the same monitor (`recompute`) and the batch test
    (`check_consistency`) on the same scans, in the same run.
-3. The test's statistics of the streaming updates (in `snapshot`, from the last result while
+3. The test's statistics of the streaming updates (in `evaluate`, from the last result while
    the map only grows) beside testing every pair of the same measures again (every 10th
    keyframe, in the same run), per quarter of the stream, and whether both agree exactly.
 4. Memory: resident set size along the stream, and a stream of scans that never get a pose
@@ -42,7 +43,7 @@ def rss_mib() -> float:
 
 def stream(stamps, ranges, poses, model) -> tuple[ConsistencyMonitor, np.ndarray, list]:
     """Feed the log scan by scan; (monitor, (N, 4) wall and CPU seconds per keyframe, the
-    snapshot's and (every 10th keyframe, else NaN) a test of every pair, RSS)."""
+    evaluation's and (every 10th keyframe, else NaN) a test of every pair, RSS)."""
     monitor = ConsistencyMonitor()
     times = np.full((len(stamps), 4), np.nan)
     memory = []
@@ -154,14 +155,14 @@ def main() -> None:
               f'{summary.measured_pairs:7d} / {full.measured_pairs:<7d}'
               f' verdict = batch: {same}')
 
-    print("\n## snapshot per update (local scales, the test from the last result while the map "
+    print("\n## evaluate per update (local scales, the test from the last result while the map "
           "only grows, copies) beside evaluate_pairs testing every pair again (what the "
           "incremental test saves)")
     rows = np.array_split(np.arange(count), 4)
     for quarter in rows:
         part = times[quarter]
         again = part[:, 3][~np.isnan(part[:, 3])]
-        print(f'keyframes {quarter[0] + 1:>5}-{quarter[-1] + 1:<5} in snapshot median '
+        print(f'keyframes {quarter[0] + 1:>5}-{quarter[-1] + 1:<5} in evaluate median '
               f'{np.median(part[:, 2]) * 1e3:6.2f} ms, p99 '
               f'{np.percentile(part[:, 2], 99) * 1e3:6.2f} ms | every pair again median '
               f'{np.median(again) * 1e3:6.2f} ms')
