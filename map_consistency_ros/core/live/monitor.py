@@ -459,7 +459,8 @@ class ConsistencyMonitor:
             path_slots[index] = slot
             registered = int(index)
             new.append(slot)
-        self._keyframes.fold(folded)
+        if folded:  # a fold needs an earlier keyframe: the store exists
+            self._keyframes.fold(folded)
         return np.asarray(new, dtype=np.int64)
 
     def _new_viewpoint(self, index: int, earlier: int) -> bool:

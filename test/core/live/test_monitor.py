@@ -236,6 +236,17 @@ def test_pose_before_scan_registers_on_refresh(intel):
     np.testing.assert_allclose(snapshot.incremental_poses, poses[[0, 2]])
 
 
+def test_a_trajectory_before_any_scan_waits_for_its_scans(intel):
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor()
+    summary = monitor.update_trajectory(stamps[:3], poses[:3])
+    assert summary.new_keyframes == 0 and summary.unmatched_poses == 3
+    empty = monitor.evaluate()
+    assert empty.keyframe_count == 0 and empty.result is None and empty.unmatched_poses == 3
+    monitor.add_scan(stamps[0], ranges[0], model)
+    assert monitor.pending and monitor.refresh().new_keyframes == 1
+
+
 def test_late_first_scan_is_chained_on_its_successor(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     monitor = ConsistencyMonitor()
