@@ -74,8 +74,8 @@ class MapConsistencyNode(Node):
                              self.pipeline.feed.monitor_settings.max_buffered_scans, wake)
         self.outputs = Outputs(self, self._settings, self.engine, self.intake)
         self.intake.subscribe()
-        self.services = Services(self, self.engine, self.outputs, tuning, self._settings)
-        self.service_host = self.services.host
+        self.node_services = Services(self, self.engine, self.outputs, tuning, self._settings)
+        self.service_host = self.node_services.host
         # a steady timer: diagnostics go on (and turn STALE) when a simulated clock pauses
         self.create_timer(self._settings.diagnostics_period, self.outputs.publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup(),
@@ -105,7 +105,7 @@ class MapConsistencyNode(Node):
     @property
     def answering(self) -> bool:
         """Whether service calls are still being answered."""
-        return self.services.answering
+        return self.node_services.answering
 
     @property
     def executor_kind(self) -> str:
@@ -115,7 +115,7 @@ class MapConsistencyNode(Node):
     @property
     def busy(self) -> bool:
         """Whether a retune or an update is still running (neither can be interrupted)."""
-        return self.services.tuning or self.engine.alive
+        return self.node_services.tuning or self.engine.alive
 
     def destroy_node(self) -> None:
         self.engine.stop(timeout=_SHUTDOWN_ANSWER_SECONDS)
