@@ -1,8 +1,8 @@
 """Replay a bag through the live node's consistency monitor and print its final verdict.
 
 Reads ROS 2 bags (mcap, sqlite3: the bag folder) and ROS 1 bags (.bag) without a ROS install.
-The scans (sensor_msgs/LaserScan) and poses are fed, in log order, to the same
-ConsistencyMonitor object the node runs, so the verdict equals what the node would publish.
+The scans (sensor_msgs/LaserScan) and poses are fed, in log order, to the same live pipeline
+the node runs (core/live/pipeline.py), so the verdict equals what the node would publish.
 
 Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic):
   nav_msgs/Path              the SLAM back-end's keyframe trajectory, as the node takes it:
@@ -49,11 +49,12 @@ from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet
 from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
-                                           KeyframeEstimate, LoopClosure, MonitorFeed,
-                                           MonitorSettings, MonitorSnapshot, NodeEvent,
-                                           PoseGraphCounts, PoseGraphNodes, PoseSample, Scan)
+                                           KeyframeEstimate, LivePipeline, LiveVerdict,
+                                           LoopClosure, MonitorSettings, MonitorSnapshot,
+                                           NodeEvent, PoseGraphCounts, PoseGraphNodes,
+                                           PoseSample, Scan)
 from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
-from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
+from map_consistency_ros.core.verdict import Assessment, ExplanationSettings
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (NEW_NODE_EVENT_TYPE, PATH_TYPE, POSE_SOURCE_TYPES,
@@ -150,15 +151,17 @@ class ReplayStats:
 
 
 class Replay:
-    """Feeds one bag's records through the node's feed (core/live/_feed.py), in log order."""
+    """Feeds one bag's records through the node's live pipeline (core/live/pipeline.py), in
+    log order."""
 
-    def __init__(self, bag: BagReader, feed: MonitorFeed) -> None:
+    def __init__(self, bag: BagReader, pipeline: LivePipeline) -> None:
         self.bag = bag
-        self.feed = feed
+        self.pipeline = pipeline
         self.stats = ReplayStats()
 
     def run(self, progress=None, duration: float | None = None) -> MonitorSnapshot:
-        """Feed the records (of the first `duration` seconds); return the final snapshot."""
+        """Feed the records (of the first `duration` seconds); return the first stage on the
+        final map."""
         total = self.bag.message_count(self.bag.topics.scan)
         started = time.perf_counter()
         stop = math.inf if duration is None else self.bag.start_time + duration
@@ -171,14 +174,14 @@ class Replay:
                                 f'{record.reason}')
                 continue
             self._count(record)
-            applied = self.feed.apply(record)
+            applied = self.pipeline.apply(record)
             self.stats.warnings.extend(applied.warnings)
             if applied.reset:
                 self.stats.warn(f'monitor reset: {applied.reset}')
             if isinstance(record, Scan) and progress is not None:
                 progress(self.stats.scans, total)
         self.stats.seconds = time.perf_counter() - started
-        return self.feed.evaluate()
+        return self.pipeline.evaluate()
 
     def _count(self, record) -> None:
         stats = self.stats
@@ -288,15 +291,16 @@ def node_parameters(values: dict) -> dict:
     return checked
 
 
-def make_feed(values: dict, pose_type: str, graph: bool = False) -> MonitorFeed:
-    """The node's feed with the node's parameters; the pose source is the bag topic's type, or
-    slam_toolbox when the bag has its graph markers beside its poses (`graph`)."""
+def make_pipeline(values: dict, pose_type: str, graph: bool = False) -> LivePipeline:
+    """The node's live pipeline with the node's parameters; the pose source is the bag topic's
+    type, or slam_toolbox when the bag has its graph markers beside its poses (`graph`)."""
     source = 'slam_toolbox' if graph else next(
         name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
     values = dict(values, pose_source=source)
-    return MonitorFeed(settings_from_values(ConsistencyParameters, values),
-                       settings_from_values(MonitorSettings, values),
-                       settings_from_values(FeedSettings, values))
+    return LivePipeline(settings_from_values(ConsistencyParameters, values),
+                        settings_from_values(MonitorSettings, values),
+                        settings_from_values(FeedSettings, values),
+                        settings_from_values(ExplanationSettings, values))
 
 
 def replay_bag(args: argparse.Namespace, bag: BagReader,
@@ -305,11 +309,12 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
     values = parameter_values(args) if values is None else values
     offset, offset_source = _laser_offset(bag, values)
     parameters = node_parameters(dict(values, laser_offset=tuple(offset)))
-    feed = make_feed(parameters, bag.pose_type, bag.has_graph)
-    replay = Replay(bag, feed)
+    pipeline = make_pipeline(parameters, bag.pose_type, bag.has_graph)
+    feed = pipeline.feed
+    replay = Replay(bag, pipeline)
     with ProgressBar('replaying', enabled=not args.quiet) as progress:
         snapshot = replay.run(progress, args.duration)
-    monitor = feed.monitor
+    monitor = pipeline.monitor
     details = {
         'source': bag.source,
         'topics': {'scan': bag.topics.scan, 'poses': bag.pose_topic, 'pose_type': bag.pose_type,
@@ -367,7 +372,7 @@ def _summary(assessment: Assessment, replay: Replay, bag: BagReader) -> str:
              f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
              f'{stats.scan_rate:.1f} scans/s, the bag\'s real time is '
              f'{stats.realtime_rate:.1f} scans/s']
-    counts = replay.feed.bridge_counts
+    counts = replay.pipeline.feed.bridge_counts
     if isinstance(counts, PoseGraphCounts):
         lines.append(f'  slam_toolbox graph    {stats.node_events} node events, '
                      f'{stats.pose_graphs} pose graphs, {stats.loop_closures} loop closures: '
@@ -382,8 +387,8 @@ def _summary(assessment: Assessment, replay: Replay, bag: BagReader) -> str:
                      f'{counts.pending_poses} poses without a vertex')
     elif stats.trajectories == 0 and stats.pose_messages:
         lines.append(f'  keyframes             {stats.pose_messages} poses, keyframes every '
-                     f'{replay.feed.settings.keyframe_distance:g} m / '
-                     f'{replay.feed.settings.keyframe_angle:g} rad')
+                     f'{replay.pipeline.feed.settings.keyframe_distance:g} m / '
+                     f'{replay.pipeline.feed.settings.keyframe_angle:g} rad')
     if stats.warnings:
         lines.append(f'  warnings              {len(stats.warnings)}')
         lines.extend(f'    {text}' for text in stats.warnings[:_SHOWN_WARNINGS])
@@ -470,17 +475,28 @@ class BagJudgement:
     """Both stages' verdict on the final map of a replayed bag, with what the outputs are
     written from."""
 
-    assessment: Assessment
-    scans: ScanSet
-    snapshot: MonitorSnapshot
+    verdict: LiveVerdict  # the live pipeline's, with the map's placed scans
     details: dict  # the report's fields beside the verdict
     summary: str  # the lines replay prints
     monitor: ConsistencyMonitor  # in its final state
     seconds: float  # the replay and the explanation, without opening the bag
 
     @property
+    def assessment(self) -> Assessment:
+        return self.verdict.assessment
+
+    @property
+    def scans(self) -> ScanSet:
+        """The final map's scans placed at their poses (the verdict's, not placed again)."""
+        return self.verdict.scans
+
+    @property
+    def snapshot(self) -> MonitorSnapshot:
+        return self.verdict.snapshot
+
+    @property
     def consistent(self) -> bool:
-        return self.assessment.consistent
+        return self.verdict.consistent
 
 
 def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
@@ -494,11 +510,9 @@ def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
             raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
                                          f'{bag.topics.scan} and no pose of {bag.pose_topic} '
                                          'matched one (check --stamp-tolerance)')
-        scans = snapshot.scans()
-        assessment = explain(scans, snapshot.result,
-                             settings_from_values(ExplanationSettings, values))
-        summary = _summary(assessment, replay, bag)
-    return BagJudgement(assessment, scans, snapshot, details, summary, replay.feed.monitor,
+        verdict = replay.pipeline.explain(snapshot)
+        summary = _summary(verdict.assessment, replay, bag)
+    return BagJudgement(verdict, details, summary, replay.pipeline.monitor,
                         time.perf_counter() - started)
 
 

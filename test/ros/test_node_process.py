@@ -194,8 +194,8 @@ def _on_a_thread(setup: Callable[[], None]) -> dict[str, int]:
 def test_the_second_stage_thread_yields_its_priority_and_the_cores():
     """_yield_to_updates lowers only its own thread: the worker keeps its priority and every
     core for its kernels."""
-    from map_consistency_ros.ros.node import (EXPLAINER_NICENESS, EXPLAINER_THREADS,
-                                              _yield_to_updates)
+    from map_consistency_ros.ros.engine import (EXPLAINER_NICENESS, EXPLAINER_THREADS,
+                                                _yield_to_updates)
     before = (numba.get_num_threads(), os.getpriority(os.PRIO_PROCESS, 0))
     seen = _on_a_thread(_yield_to_updates)
     assert seen == {'threads': EXPLAINER_THREADS, 'nice': EXPLAINER_NICENESS}
@@ -205,7 +205,7 @@ def test_the_second_stage_thread_yields_its_priority_and_the_cores():
 @pytest.mark.parametrize('requested, expected', [(1, 1), (0, 'all'), (10_000, 'all')])
 def test_the_update_thread_runs_its_kernels_on_the_threads_asked(requested, expected):
     """update_threads on the worker's thread alone (0 or too many: every core numba has)."""
-    from map_consistency_ros.ros.node import _run_kernels_on
+    from map_consistency_ros.ros.engine import _run_kernels_on
     before = numba.get_num_threads()
     seen = _on_a_thread(lambda: _run_kernels_on(requested))
     everything = numba.config.NUMBA_NUM_THREADS
@@ -214,7 +214,7 @@ def test_the_update_thread_runs_its_kernels_on_the_threads_asked(requested, expe
 
 
 def test_sigint_when_idle_ends_cleanly(ros_env):
-    from map_consistency_ros.ros.node import EXPLAINER_NICENESS
+    from map_consistency_ros.ros.engine import EXPLAINER_NICENESS
     process, client = _node(ros_env), None
     try:
         client = Client()
@@ -280,10 +280,10 @@ def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, sha
 # compiler, say); nothing else differs
 _FAILING_WARM_UP = """
 import sys
-from map_consistency_ros.ros import node
+from map_consistency_ros.ros import engine, node
 def broken():
     raise OSError('kernel cache unreadable')
-node.warm_up = broken
+engine.warm_up = broken
 sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=0.2']))
 """
 
@@ -351,17 +351,19 @@ sys.exit(node.main(['map_consistency', '--ros-args', '-p', 'diagnostics_period:=
 """
 
 # the node's own entry point, with a second stage whose first and third explanations run out
-# of memory
+# of memory (the node's pipeline only: the warm-up's explains as it should)
 _FAILING_TWICE = """
 import sys
+from map_consistency_ros.core.live import LivePipeline
 from map_consistency_ros.ros import node
-real, calls = node.explain, []
-def explain(*args, **kwargs):
-    calls.append(1)
-    if len(calls) in (1, 3):
-        raise MemoryError('injected')
-    return real(*args, **kwargs)
-node.explain = explain
+calls = []
+class FailingTwice(LivePipeline):
+    def explain(self, snapshot):
+        calls.append(1)
+        if len(calls) in (1, 3):
+            raise MemoryError('injected')
+        return super().explain(snapshot)
+node.LivePipeline = FailingTwice
 """ + _NODE_MAIN
 
 

@@ -117,10 +117,10 @@ def test_live_path_gives_the_verdict_of_replay(slam_toolbox_graph_stream, tmp_pa
                 if msgtype != messages.NEW_NODE_EVENT_TYPE:
                     scans.wait_for_all_acked(Duration(seconds=5))
                     deadline = time.monotonic() + 60.0
-                    while (node._feed.newest_scan < last_scan - 1e-6
+                    while (node.pipeline.feed.newest_scan < last_scan - 1e-6
                            and time.monotonic() < deadline):
                         time.sleep(0.02)
-                    assert node._feed.newest_scan >= last_scan - 1e-6
+                    assert node.pipeline.feed.newest_scan >= last_scan - 1e-6
                 callback, raw = callbacks[msgtype]
                 callback(data if raw else reader._deserialize(data, msgtype))
         code = main(['replay', str(bag), '--quiet', '--report', str(tmp_path / 'r.json')])

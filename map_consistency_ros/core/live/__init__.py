@@ -1,11 +1,12 @@
 """The live state: the input records (scans, keyframe estimates, single poses, graph snapshots,
-constraints), the one feed from records to the monitor shared by the node, replay and the
-warm-up (keyframing of single poses, resets, stamp gaps), the pose sources behind it (the
-slam_toolbox graph-marker bridge and its PoseGraph bridge), and ConsistencyMonitor, the
-incremental state (pair cache, placed geometry, both stages on demand). `monitor` stays a public module: tests patch it."""
+constraints), the one feed from records to the monitor (keyframing of single poses, resets,
+stamp gaps), the pose sources behind it (the slam_toolbox graph-marker bridge and its PoseGraph
+bridge), ConsistencyMonitor, the incremental state (pair cache, placed geometry), and the live
+pipeline over them all (feed, monitor, both stages), shared by the node, replay and the
+warm-up. `monitor` and `pipeline` stay public modules: tests patch them."""
 from map_consistency_ros.core.live._feed import (KEYFRAMED_SOURCES, POSE_SOURCES,
                                                  RESET_CONFIRMATIONS, Applied, FeedSettings,
-                                                 MonitorFeed, PoseKeyframer, ScanGaps, warm_up)
+                                                 MonitorFeed, PoseKeyframer, ScanGaps)
 from map_consistency_ros.core.live._graph_bridge import (BridgeCounts, BridgeSettings,
                                                          HeadingFit, SlamToolboxBridge,
                                                          fit_rotations, interpolate_rotations,
@@ -16,6 +17,7 @@ from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot,
                                                     PoseGraphNodes, PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    MonitorSnapshot, UpdateSummary, sensor_poses)
+from map_consistency_ros.core.live.pipeline import LivePipeline, LiveVerdict, warm_up
 
 __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
@@ -25,4 +27,5 @@ __all__ = [
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',
     'fit_rotations', 'interpolate_rotations',
     'ConsistencyMonitor', 'MonitorSettings', 'MonitorSnapshot', 'UpdateSummary', 'sensor_poses',
+    'LivePipeline', 'LiveVerdict',
 ]

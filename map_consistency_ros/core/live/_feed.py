@@ -1,4 +1,5 @@
-"""One feed from input records to the ConsistencyMonitor, shared by the node and bag replay.
+"""One feed from input records to the ConsistencyMonitor, inside the live pipeline that the node,
+bag replay and the warm-up share (core/live/pipeline.py).
 
 `MonitorFeed.apply(record)` is the only way records reach a monitor; it returns what the
 record did, including every warning, so the node and replay report the same problems.
@@ -28,13 +29,14 @@ it judged (the node's ~/report and replay's report, `judged_stamp`): at the last
 map, the newest estimate taken, by its header stamp, or, for estimates without one (single
 poses, graph snapshots), its newest keyframe's stamp. A scan that completes a keyframe of that
 estimate later changes the map under the same name; an estimate that changes nothing renames
-nothing. `evaluate()` is the monitor's evaluation with it.
+nothing. The live pipeline's snapshot (`LivePipeline.evaluate`, core/live/pipeline.py)
+carries it.
 """
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,7 +48,7 @@ from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, 
                                                     LoopClosure, NodeEvent, PoseGraphNodes,
                                                     PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
-                                                   MonitorSnapshot, UpdateSummary)
+                                                   UpdateSummary)
 from map_consistency_ros.core.parameters import parameter
 
 POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox',
@@ -273,11 +275,6 @@ class MonitorFeed:
             return self.graph_bridge.counts
         return None if self.bridge is None else self.bridge.counts
 
-    def evaluate(self) -> MonitorSnapshot:
-        """The monitor's evaluation (the test runs when the map changed), naming the estimate
-        it holds (`estimate_stamp`)."""
-        return replace(self.monitor.evaluate(), estimate_stamp=self.estimate_stamp)
-
     def apply(self, record: Record) -> Applied:
         """Apply one record; bad content becomes a warning, never an exception."""
         if isinstance(record, Scan):
@@ -462,41 +459,3 @@ class MonitorFeed:
                                  np.array(self.keyframer.poses), math.nan)
         return Applied(summary=applied.summary, warnings=tuple(warnings) + applied.warnings)
 
-
-def warm_up() -> None:
-    """Run the compiled kernels of both stages once, through a throwaway feed, on a made-up
-    corridor: a walk down it, then a revisit of its start placed 3 degrees off (its local
-    window sees no part of the corridor it is wrong against, so that the test flags it and the
-    second stage registers it).
-
-    Loading the kernels from numba's cache costs the first call a few hundred milliseconds: a
-    node pays it at start instead of on its first update.
-    """
-    from map_consistency_ros.core.geometry import SensorModel
-    from map_consistency_ros.core.verdict import ExplanationSettings, explain
-    model = SensorModel(angle_min=-math.pi / 2, angle_increment=math.pi / 90, max_range=8.0)
-    bearings = model.bearings(91)
-    walk, revisit = 100, 8
-    poses = np.zeros((walk + revisit, 3))
-    poses[:walk, 0] = np.linspace(0.0, 20.0, walk)
-    poses[walk:, 0] = np.linspace(0.0, 0.2, revisit)
-    feed = MonitorFeed()
-    for stamp, pose in enumerate(poses):
-        feed.apply(Scan(stamp=float(stamp), ranges=_corridor_ranges(pose, bearings), model=model))
-    placed = poses.copy()
-    placed[walk:, 2] += math.radians(3.0)
-    feed.apply(KeyframeEstimate(stamps=np.arange(float(len(poses))), poses=placed))
-    snapshot = feed.monitor.evaluate()
-    explain(snapshot.scans(), snapshot.result, ExplanationSettings())
-
-
-def _corridor_ranges(pose: np.ndarray, bearings: np.ndarray) -> np.ndarray:
-    """Ranges from `pose` to the walls of the rectangle [-2, 30] x [-2, 2] along `bearings`."""
-    angles = bearings + pose[2]
-    directions = np.stack([np.cos(angles), np.sin(angles)])
-    low, high = np.array([[-2.0], [-2.0]]), np.array([[30.0], [2.0]])
-    position = pose[:2, None]
-    with np.errstate(divide='ignore'):
-        steps = np.where(directions > 0, (high - position) / directions,
-                         (low - position) / directions)
-    return steps.min(axis=0)

@@ -66,23 +66,21 @@ def test_single_poses_are_keyframed_and_late_estimates_refused(intel):
 def test_the_estimate_stamp_names_the_last_estimate_that_changed_the_map(intel):
     stamps, ranges, poses, model = intel
     feed = MonitorFeed()
-    assert math.isnan(feed.evaluate().estimate_stamp)  # no estimate yet
+    assert math.isnan(feed.estimate_stamp)  # no estimate yet
     for scan in _scan_records(stamps, ranges, model):
         feed.apply(scan)
     feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1000.5))
-    assert feed.evaluate().estimate_stamp == 1000.5
+    assert feed.estimate_stamp == 1000.5
     # the same estimate again changes nothing: the verdict on it still judged 1000.5
     assert feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=1001.0)).summary is None
-    assert feed.evaluate().estimate_stamp == 1000.5
+    assert feed.estimate_stamp == 1000.5
     moved = poses.copy()
     moved[SCANS // 2:, 0] += 0.5  # a loop closure moves half of the keyframes
     feed.apply(KeyframeEstimate(stamps=stamps, poses=moved, stamp=1002.0))
-    snapshot = feed.evaluate()
-    assert snapshot.estimate_stamp == 1002.0
-    np.testing.assert_array_equal(snapshot.poses, feed.monitor.evaluate().poses)
+    assert feed.estimate_stamp == 1002.0
     # without a header stamp (a bridge's output): the newest keyframe's stamp
     feed.apply(KeyframeEstimate(stamps=stamps, poses=poses))
-    assert feed.evaluate().estimate_stamp == stamps.max()
+    assert feed.estimate_stamp == stamps.max()
 
 
 def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
@@ -94,10 +92,9 @@ def test_a_scan_completing_an_estimate_changes_the_map_under_its_name(intel):
         feed.apply(scan)
     feed.apply(KeyframeEstimate(stamps=stamps[:-1], poses=poses[:-1], stamp=500.0))
     waiting = feed.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=501.0))
-    assert waiting.summary is None and feed.evaluate().estimate_stamp == 500.0
+    assert waiting.summary is None and feed.estimate_stamp == 500.0
     assert feed.apply(scans[-1]).summary is not None  # the last keyframe, of estimate 501
-    snapshot = feed.evaluate()
-    assert snapshot.keyframe_count == SCANS and snapshot.estimate_stamp == 501.0
+    assert feed.monitor.keyframe_count == SCANS and feed.estimate_stamp == 501.0
 
 
 def test_single_poses_name_their_estimate_by_the_newest_keyframe(intel):
@@ -107,8 +104,7 @@ def test_single_poses_name_their_estimate_by_the_newest_keyframe(intel):
     for scan, stamp, pose in zip(_scan_records(stamps, ranges, model), stamps, poses):
         feed.apply(scan)
         feed.apply(PoseSample(stamp=float(stamp), pose=pose))
-    snapshot = feed.evaluate()
-    assert snapshot.estimate_stamp == snapshot.stamps.max()
+    assert feed.estimate_stamp == feed.monitor.evaluate().stamps.max()
 
 
 @pytest.mark.parametrize('pose, problem', [
@@ -335,24 +331,3 @@ def test_slam_toolbox_snapshots_overtaking_poses_give_the_log_order_verdict(
     np.testing.assert_array_equal(results[0].result.inconsistent, results[1].result.inconsistent)
     assert results[0].result.failed_pair_count == results[1].result.failed_pair_count
 
-
-def test_warm_up_loads_every_kernel_of_both_stages():
-    """In a fresh interpreter (this one has run the kernels already)."""
-    import subprocess
-    import sys
-    # the modules that hold the kernels, through the public functions they define
-    probe = ('import sys\n'
-             'from map_consistency_ros.core.consistency import statistics\n'
-             'from map_consistency_ros.core.geometry import pair_measures\n'
-             'from map_consistency_ros.core.live import warm_up\n'
-             'from map_consistency_ros.core.verdict import register_submaps\n'
-             'warm_up()\n'
-             'measure = sys.modules[pair_measures.__module__]\n'
-             'registration = sys.modules[register_submaps.__module__]\n'
-             'kernels = [measure._pair_kernel, measure._pairs_distances, '
-             'registration._thin_ranges, registration._register_tasks, '
-             'statistics._critical_counts]\n'
-             'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
-    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
-                          check=True)
-    assert done.stdout.strip() == '1,1,1,1,1'

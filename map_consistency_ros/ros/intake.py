@@ -1,0 +1,241 @@
+"""The node's intake: subscriptions whose callbacks only convert messages into core records
+(io/messages.py, the converter bag replay uses too) and queue them for the engine.
+
+Scans take a callback group of their own, the heavier poses and constraints another, so
+decoding a long Path never delays a scan. Queued records carry their arrival
+(time.monotonic), for the update latency. Scans and single poses are all kept, in arrival order
+(the slam_toolbox bridge's association and heading chain depend on it), up to the monitor's
+`max_buffered_scans`; of keyframe estimates and constraints, each the full set, only the newest.
+Every scan the node cannot take is counted (DDS losses, a full queue); every bad message is
+counted, kept for diagnostics and warned about at most once per `warning_period` per topic.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from nav_msgs.msg import Path
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+
+from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
+                                           KeyframeEstimate, PoseSample, Record, Scan)
+from map_consistency_ros.io import messages
+from map_consistency_ros.ros import slam_toolbox_graph
+from map_consistency_ros.ros.conversions import message_class
+from map_consistency_ros.ros.qos import GRAPH, RELIABLE, SINGLE_POSES, scan_qos
+from map_consistency_ros.ros.settings import NodeSettings
+
+# the topic each record comes from, for the input-problem reports
+RECORD_TOPICS = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
+                 Constraints: 'constraints', GraphSnapshot: 'graph_visualization',
+                 **slam_toolbox_graph.RECORD_TOPICS}
+
+
+@dataclass(frozen=True)
+class InputFigures:
+    """What the intake knows at one instant, for /diagnostics."""
+
+    last_input: float | None  # the node's clock at the last message, None before any
+    problems: int  # bad messages since the start
+    last_problem: tuple[str, float]  # (what, when by time.monotonic)
+    lost_scans: int  # reported lost by the middleware or dropped from the full queue
+    queued_scans: int  # received, not yet taken by the engine
+
+
+def _deserialized(data: bytes, msgtype: str):
+    """rclpy's message of `data`; ValueError for bytes it cannot decode (a raw publisher can
+    send anything)."""
+    try:
+        return deserialize_message(data, message_class(msgtype))
+    except RuntimeError as error:
+        raise ValueError(f'undecodable {msgtype} message ({error})') from None
+
+
+class Intake:
+    """The node's subscriptions and queues (see the module docstring).
+
+    Parameters
+    ----------
+    node: the node that subscribes (its clock times the inputs, its logger warns).
+    settings: the node's settings.
+    feed_settings: the pose source and the usable range of the scans.
+    queue_limit: scans (and single poses) queued at most; the oldest go beyond.
+    wake: set whenever a record is queued.
+    """
+
+    def __init__(self, node: Node, settings: NodeSettings, feed_settings: FeedSettings,
+                 queue_limit: int, wake: threading.Event) -> None:
+        self._node = node
+        self._settings = settings
+        self._feed_settings = feed_settings
+        self._queue_limit = queue_limit
+        self._wake = wake
+        self._lock = threading.Lock()
+        self._scans: deque[tuple[float, Scan]] = deque()
+        self._poses: deque[tuple[float, PoseSample | GraphSnapshot]] = deque()
+        self._estimate: tuple[float, KeyframeEstimate] | None = None
+        self._constraints: tuple[float, Constraints] | None = None
+        self._last_input: float | None = None
+        self._problems = 0
+        self._last_problem = ('', -math.inf)
+        self._warned: dict[str, float] = {}
+        self._dds_lost = 0  # scans the middleware reported lost
+        self._queue_lost = 0  # scans dropped from the full queue
+
+    def subscribe(self) -> None:
+        """Create the subscriptions of the pose source (docs/node.md, Inputs)."""
+        node, settings, feed_settings = self._node, self._settings, self._feed_settings
+        node.create_subscription(
+            message_class(messages.SCAN_TYPE), 'scan', self._on_scan,
+            scan_qos(settings.scan_queue_depth, settings.scan_reliability == 'reliable'),
+            callback_group=MutuallyExclusiveCallbackGroup(),
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_scans_lost))
+        poses = MutuallyExclusiveCallbackGroup()
+        pose_type = messages.POSE_SOURCE_TYPES[feed_settings.pose_source]
+        if feed_settings.slam_toolbox_graph:
+            slam_toolbox_graph.subscribe(node, poses, self._convert, self._convert_bytes,
+                                         self._queue_pose)
+        elif feed_settings.pose_source != 'path':
+            node.create_subscription(message_class(pose_type), 'pose',
+                                     lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
+                                     callback_group=poses)
+            # raw, the graph and the Path below: their bytes are read (messages.CDR_RECORDS)
+            # where message objects of the whole estimate would hold the interpreter for
+            # 50-150 us per pose
+            if feed_settings.slam_toolbox:
+                node.create_subscription(message_class(messages.MARKER_ARRAY_TYPE),
+                                         'graph_visualization', self._on_graph, GRAPH,
+                                         callback_group=poses, raw=True)
+        else:
+            node.create_subscription(Path, 'trajectory', self._on_trajectory, RELIABLE,
+                                     callback_group=poses, raw=True)
+        node.create_subscription(message_class(messages.CONSTRAINTS_TYPE), 'constraints',
+                                 self._on_constraints, RELIABLE, callback_group=poses)
+
+    def now(self) -> float:
+        """Seconds on the node's clock (simulated time with use_sim_time)."""
+        return self._node.get_clock().now().nanoseconds * 1e-9
+
+    # -- what the engine takes and reports -------------------------------------------------
+
+    def take(self) -> list[tuple[float, Record]]:
+        """Every queued record with its arrival: scans and single poses in arrival order, then
+        the newest constraints and keyframe estimate."""
+        with self._lock:
+            records = list(self._scans) + list(self._poses)
+            self._scans.clear()
+            self._poses.clear()
+            for latest in (self._constraints, self._estimate):
+                if latest is not None:
+                    records.append(latest)
+            self._estimate = self._constraints = None
+        return records
+
+    def problem(self, topic: str, message: str) -> None:
+        """Count a bad message, keep it for diagnostics, warn at most once per period."""
+        now = time.monotonic()
+        with self._lock:
+            self._problems += 1
+            self._last_problem = (f'{topic}: {message}', now)
+        if now - self._warned.get(topic, -math.inf) >= self._settings.warning_period:
+            self._warned[topic] = now
+            self._node.get_logger().warning(f'ignored bad input on {topic}: {message}')
+
+    def record_problems(self, record: Record, warnings: tuple[str, ...]) -> None:
+        """The warnings of applying `record`, as problems of the topic it came from."""
+        topic = RECORD_TOPICS[type(record)]
+        for warning in warnings:
+            self.problem(topic, warning)
+
+    def forget_losses(self) -> None:
+        """Start counting lost scans afresh (a reset: a new session)."""
+        with self._lock:
+            self._dds_lost = self._queue_lost = 0
+
+    def figures(self) -> InputFigures:
+        """The intake's figures now."""
+        with self._lock:
+            return InputFigures(last_input=self._last_input, problems=self._problems,
+                                last_problem=self._last_problem,
+                                lost_scans=self._dds_lost + self._queue_lost,
+                                queued_scans=len(self._scans))
+
+    # -- callbacks (cheap: convert and queue) ------------------------------------------------
+
+    def _record(self, topic: str, convert: Callable[[], object]):
+        """The record `convert()` makes of a message that just arrived on `topic`; None, and
+        the problem counted, when it was bad."""
+        with self._lock:
+            self._last_input = self.now()
+        try:
+            return convert()
+        except ValueError as error:
+            self.problem(topic, str(error))
+            return None
+
+    def _convert(self, topic: str, msgtype: str, msg):
+        return self._record(topic, lambda: messages.to_record(msgtype, msg,
+                                                              self._feed_settings.max_range))
+
+    def _convert_bytes(self, topic: str, msgtype: str, data: bytes):
+        """The record of a raw subscription's message (None when it was bad)."""
+        return self._record(topic, lambda: messages.record_from_cdr(
+            msgtype, data, _deserialized, self._feed_settings.max_range))
+
+    def _on_scan(self, msg) -> None:
+        record = self._convert('scan', messages.SCAN_TYPE, msg)
+        if record is None:
+            return
+        with self._lock:
+            if len(self._scans) >= self._queue_limit:
+                self._scans.popleft()
+                self._queue_lost += 1
+            self._scans.append((time.monotonic(), record))
+        self._wake.set()
+
+    def _on_scans_lost(self, info) -> None:
+        with self._lock:
+            self._dds_lost += info.total_count_change
+
+    def _on_trajectory(self, data: bytes) -> None:
+        record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
+        if record is not None:
+            with self._lock:
+                # the full estimate: a newer one replaces it, and the wait counts from the
+                # first one it replaced (the latency is that of the oldest input answered)
+                first = time.monotonic() if self._estimate is None else self._estimate[0]
+                self._estimate = (first, record)
+            self._wake.set()
+
+    def _on_pose(self, msgtype: str, msg) -> None:
+        self._queue_pose(self._convert('pose', msgtype, msg))
+
+    def _on_graph(self, data: bytes) -> None:
+        self._queue_pose(self._convert_bytes('graph_visualization', messages.MARKER_ARRAY_TYPE,
+                                             data))
+
+    def _queue_pose(self, record: PoseSample | GraphSnapshot | None) -> None:
+        """Queue a single pose or graph snapshot (all kept, in order; None: it was bad)."""
+        if record is not None:
+            with self._lock:
+                if len(self._poses) >= self._queue_limit:
+                    self._poses.popleft()
+                    self._problems += 1
+                    self._last_problem = ('pose: queue full, the oldest pose or graph dropped',
+                                          time.monotonic())
+                self._poses.append((time.monotonic(), record))
+            self._wake.set()
+
+    def _on_constraints(self, msg) -> None:
+        record = self._convert('constraints', messages.CONSTRAINTS_TYPE, msg)
+        if record is not None:
+            with self._lock:
+                self._constraints = (time.monotonic(), record)
+            self._wake.set()

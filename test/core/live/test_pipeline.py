@@ -1,0 +1,138 @@
+"""The live pipeline (feed, monitor, both stages) against the batch check on real Intel scans."""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
+from map_consistency_ros.core.geometry import ScanSet, se2
+from map_consistency_ros.core.live import (KeyframeEstimate, LivePipeline, MonitorSettings,
+                                           MonitorSnapshot, Scan)
+from map_consistency_ros.core.verdict import explain, misaligned_endpoints
+from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+
+SCANS = 80
+# Against the batch check: every keyframe a viewpoint, every pair measured.
+EVERY_KEYFRAME = ConsistencyParameters(viewpoint_spacing=0.0, viewpoint_turn=0.0)
+ALL_PAIRS = MonitorSettings(max_partners=0)
+
+
+@pytest.fixture(scope='module')
+def intel(shared_data):
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
+    assert np.all(np.diff(stamps) > 0)
+    # a wrong loop closure drags the second half of the excerpt aside
+    dragged = poses.copy()
+    pivot = poses[SCANS // 2]
+    dragged[SCANS // 2:] = se2.compose(se2.compose(pivot, np.array([0.3, 0.0, 0.05])),
+                                       se2.relative(pivot, poses[SCANS // 2:]))
+    return stamps, log.ranges[:SCANS], poses, dragged, sensor_model(log)
+
+
+@pytest.fixture(scope='module')
+def streamed(intel):
+    """The pipeline after the scans, the estimate as mapped, then the dragged one."""
+    stamps, ranges, poses, dragged, model = intel
+    pipeline = LivePipeline(EVERY_KEYFRAME, ALL_PAIRS)
+    for stamp, scan in zip(stamps, ranges):
+        assert pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model)).warnings == ()
+    assert pipeline.apply(KeyframeEstimate(stamps=stamps, poses=poses, stamp=10.0)).summary
+    assert pipeline.apply(KeyframeEstimate(stamps=stamps, poses=dragged, stamp=11.0)).summary
+    return pipeline
+
+
+def test_both_stages_give_the_batch_verdict(intel, streamed):
+    stamps, ranges, _, dragged, model = intel
+    snapshot = streamed.evaluate()
+    verdict = streamed.explain(snapshot)
+    # the batch check of the same poses, its local scales fitted on the same first-seen poses
+    scans = ScanSet.from_ranges(ranges, dragged, model)
+    oracle = check_consistency(scans, EVERY_KEYFRAME, reference_scans=ScanSet.from_ranges(
+        ranges, snapshot.incremental_poses, model))
+    expected = explain(scans, oracle)
+    result = verdict.snapshot.result
+    np.testing.assert_array_equal(snapshot.stamps, stamps)
+    np.testing.assert_array_equal(result.inconsistent, oracle.inconsistent)
+    np.testing.assert_array_equal(result.failed_counts, oracle.failed_counts)
+    assert result.failed_pair_count == oracle.failed_pair_count > 0
+    assessment = verdict.assessment
+    assert not assessment.consistent and not expected.consistent
+    np.testing.assert_array_equal(assessment.flagged, expected.flagged)
+    assert assessment.summary_line() == expected.summary_line()
+    assert len(assessment.misalignments) == len(expected.misalignments) > 0
+    for live, batch in zip(assessment.misalignments, expected.misalignments):
+        np.testing.assert_array_equal(live.scans, batch.scans)
+        assert live.displacement == pytest.approx(batch.displacement, rel=1e-6, abs=1e-9)
+    # every explained pair in the same class
+    classes = {tuple(pair): code for pair, code in zip(
+        result.pairs[assessment.explained_pairs].tolist(), assessment.pair_classes)}
+    assert classes == {tuple(pair): code for pair, code in zip(
+        oracle.pairs[expected.explained_pairs].tolist(), expected.pair_classes)}
+    np.testing.assert_allclose(verdict.misaligned_endpoints(50),
+                               misaligned_endpoints(scans, expected, 50), atol=1e-9)
+
+
+def test_the_placed_geometry_is_placed_once_and_shared(streamed, monkeypatch):
+    placed = []
+    real = MonitorSnapshot.scans
+
+    def scans(snapshot):
+        placed.append(real(snapshot))
+        return placed[-1]
+
+    monkeypatch.setattr(MonitorSnapshot, 'scans', scans)
+    snapshot = streamed.evaluate()
+    assert placed == []  # the first stage places nothing for the second
+    verdict = streamed.explain(snapshot)
+    assert len(placed) == 1 and verdict.scans is placed[0] and verdict.snapshot is snapshot
+    points = verdict.misaligned_endpoints(50)  # what the markers draw
+    assert len(placed) == 1 and len(points) > 0
+    np.testing.assert_array_equal(verdict.scans.sensor_poses, snapshot.scans().sensor_poses)
+
+
+def test_evaluate_is_the_monitors_snapshot_named_by_its_estimate(intel, streamed):
+    snapshot = streamed.evaluate()
+    assert snapshot.estimate_stamp == 11.0
+    np.testing.assert_array_equal(snapshot.poses, streamed.monitor.evaluate().poses)
+    np.testing.assert_array_equal(snapshot.poses, intel[3])
+
+
+def test_a_reset_starts_a_new_session(intel):
+    stamps, ranges, poses, _, model = intel
+    pipeline = LivePipeline(EVERY_KEYFRAME, ALL_PAIRS)
+    with pytest.raises(ValueError, match='no keyframes'):
+        pipeline.explain(pipeline.evaluate())
+    for stamp, scan in zip(stamps[:20], ranges[:20]):
+        pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model))
+    pipeline.apply(KeyframeEstimate(stamps=stamps[:20], poses=poses[:20]))
+    monitor = pipeline.monitor
+    assert pipeline.explain(pipeline.evaluate()).snapshot.keyframe_count == 20
+    pipeline.reset('a new session')
+    assert pipeline.monitor is not monitor and pipeline.feed.resets == 1
+    snapshot = pipeline.evaluate()
+    assert snapshot.result is None and math.isnan(snapshot.estimate_stamp)
+
+
+def test_warm_up_loads_every_kernel_of_both_stages():
+    """In a fresh interpreter (this one has run the kernels already)."""
+    # the modules that hold the kernels, through the public functions they define
+    probe = ('import sys\n'
+             'from map_consistency_ros.core.consistency import statistics\n'
+             'from map_consistency_ros.core.geometry import pair_measures\n'
+             'from map_consistency_ros.core.live import warm_up\n'
+             'from map_consistency_ros.core.verdict import register_submaps\n'
+             'warm_up()\n'
+             'measure = sys.modules[pair_measures.__module__]\n'
+             'registration = sys.modules[register_submaps.__module__]\n'
+             'kernels = [measure._pair_kernel, measure._pairs_distances, '
+             'registration._thin_ranges, registration._register_tasks, '
+             'statistics._critical_counts]\n'
+             'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          check=True)
+    assert done.stdout.strip() == '1,1,1,1,1'
