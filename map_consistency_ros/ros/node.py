@@ -40,16 +40,15 @@ from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from map_consistency_ros.core.backend import TuningSettings, tune_dcs, tuning_problem
-from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.backend import tune_dcs, tuning_problem
+from map_consistency_ros.core.configuration import (PARAMETERS, Configuration, NodeSettings,
+                                                    unknown_parameters)
 from map_consistency_ros.core.geometry import ScanSet
-from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
-                                           KeyframeEstimate, MonitorFeed, MonitorSettings,
-                                           MonitorSnapshot, PoseGraphNodes, PoseSample, Scan,
-                                           sensor_poses, warm_up)
-from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
-                                                 unknown_names)
-from map_consistency_ros.core.verdict import (Assessment, ExplanationSettings, RegistrationCache,
+from map_consistency_ros.core.live import (Constraints, GraphSnapshot, KeyframeEstimate,
+                                           MonitorFeed, MonitorSnapshot, PoseGraphNodes,
+                                           PoseSample, Scan, sensor_poses, warm_up)
+from map_consistency_ros.core.parameters import ParameterSpec
+from map_consistency_ros.core.verdict import (Assessment, RegistrationCache,
                                               assessment_report, explain, misaligned_endpoints,
                                               plain, to_json)
 from map_consistency_ros.io import messages
@@ -57,7 +56,6 @@ from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status, not_monitoring
 from map_consistency_ros.ros.markers import MarkerUpdates
 from map_consistency_ros.ros import slam_toolbox_graph
-from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL,
@@ -113,15 +111,14 @@ class MapConsistencyNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('map_consistency', **kwargs)
         values = self._declare_parameters()
-        for warning in unknown_names(self._override_names(), PARAMETER_NAMES):
+        for warning in unknown_parameters(self._override_names()):
             self.get_logger().warning(warning)
-        self._settings: NodeSettings = settings_from_values(NodeSettings, values)
-        feed_settings = settings_from_values(FeedSettings, values)
-        self._feed = MonitorFeed(settings_from_values(ConsistencyParameters, values),
-                                 settings_from_values(MonitorSettings, values), feed_settings)
-        self._tuning = settings_from_values(TuningSettings, values,
-                                            parameters=self._feed.parameters)
-        self._explanation = settings_from_values(ExplanationSettings, values)
+        config = Configuration.from_values(values)
+        self._settings: NodeSettings = config.node
+        feed_settings = config.feed
+        self._feed = MonitorFeed(config.consistency, config.monitor, feed_settings)
+        self._tuning = config.tuning
+        self._explanation = config.explanation
         self._registrations = RegistrationCache()  # replaced under _publishing, used under _explaining
         # the last verdict of both stages, the snapshot it judged and its scans (the markers
         # draw from them), and when (time.monotonic)
@@ -239,13 +236,12 @@ class MapConsistencyNode(Node):
 
     def _declare_parameters(self) -> dict:
         values = {}
-        for _, group in NODE_GROUPS:
-            for spec in specs(group):
-                value = self.declare_parameter(spec.name, _ros_default(spec),
-                                               _descriptor(spec)).value
-                # arrays come back as array.array or list: our check takes lists
-                sequence = not isinstance(value, (str, bool, int, float)) and value is not None
-                values[spec.name] = list(value) if sequence else value
+        for spec in PARAMETERS:
+            value = self.declare_parameter(spec.name, _ros_default(spec),
+                                           _descriptor(spec)).value
+            # arrays come back as array.array or list: our check takes lists
+            sequence = not isinstance(value, (str, bool, int, float)) and value is not None
+            values[spec.name] = list(value) if sequence else value
         return values
 
     def _override_names(self) -> list[str]:

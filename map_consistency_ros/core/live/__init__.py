@@ -5,7 +5,8 @@ slam_toolbox graph-marker bridge and its PoseGraph bridge), and ConsistencyMonit
 incremental state (pair cache, placed geometry, both stages on demand). `monitor` stays a public module: tests patch it."""
 from map_consistency_ros.core.live._feed import (KEYFRAMED_SOURCES, POSE_SOURCES,
                                                  RESET_CONFIRMATIONS, Applied, FeedSettings,
-                                                 MonitorFeed, PoseKeyframer, ScanGaps, warm_up)
+                                                 MonitorFeed, PoseKeyframer, PoseSource, ScanGaps,
+                                                 warm_up)
 from map_consistency_ros.core.live._graph_bridge import (BridgeCounts, BridgeSettings,
                                                          HeadingFit, SlamToolboxBridge,
                                                          fit_rotations, interpolate_rotations,
@@ -21,7 +22,7 @@ __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
     'NodeEvent', 'PoseGraphNodes', 'LoopClosure', 'PoseGraphBridge', 'PoseGraphCounts',
     'FeedSettings', 'MonitorFeed', 'Applied', 'PoseKeyframer', 'ScanGaps', 'warm_up',
-    'POSE_SOURCES', 'KEYFRAMED_SOURCES', 'RESET_CONFIRMATIONS',
+    'PoseSource', 'POSE_SOURCES', 'KEYFRAMED_SOURCES', 'RESET_CONFIRMATIONS',
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',
     'fit_rotations', 'interpolate_rotations',
     'ConsistencyMonitor', 'MonitorSettings', 'MonitorSnapshot', 'UpdateSummary', 'sensor_poses',

@@ -36,7 +36,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
 from map_consistency_ros.core.geometry import (SCAN_ARRAYS, PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, pair_measures, se2,
                                                with_rows)
-from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.parameters import Settings, parameter
 
 # Below this many pairs the kernel runs on the calling thread alone: waking the OpenMP
 # threads for a handful of pairs costs more than it saves; from about a hundred, two threads
@@ -56,7 +56,7 @@ _FOLDED = -2  # its scan was folded into the previous viewpoint (core/viewpoints
 
 
 @dataclass(frozen=True)
-class MonitorSettings:
+class MonitorSettings(Settings):
     """Bookkeeping of the monitor (the statistics are in ConsistencyParameters)."""
 
     laser_offset: tuple[float, float, float] = parameter(
@@ -81,21 +81,6 @@ class MonitorSettings:
         'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
         'when it arrives: bounds the cost per keyframe in places visited very often; 0: all',
         '', (0, 1_000_000))
-
-    def __post_init__(self) -> None:
-        if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
-            raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
-        if self.max_buffered_scans < 1:
-            raise ValueError('max_buffered_scans must be at least 1')
-        if self.max_partners < 0:
-            raise ValueError(f'max_partners must not be negative, got {self.max_partners}')
-        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size',
-                     'max_pose_extent'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'{name} must be a finite non-negative number, got {value}')
-        if self.cell_size <= 0.0:
-            raise ValueError('cell_size must be positive')
 
 
 @dataclass(frozen=True)
