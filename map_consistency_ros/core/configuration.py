@@ -135,13 +135,15 @@ class Configuration:
         unknown = taking - {group.name for group in GROUPS}
         if unknown:
             raise ValueError(f'no settings group {", ".join(sorted(unknown))}')
-        made = {group.name: settings_from_values(group.settings, values)
-                for group in GROUPS if group.name in taking and group.name != 'tuning'}
-        consistency = made.get('consistency', ConsistencyParameters())
-        if 'tuning' in taking:
-            made['tuning'] = settings_from_values(TuningSettings, values, parameters=consistency)
-        else:
-            made['tuning'] = TuningSettings(parameters=consistency)
+        made = {}
+        for group in GROUPS:  # in order: the first bad value named is the file's first
+            given = values if group.name in taking else {}
+            if group.settings is TuningSettings:
+                made[group.name] = settings_from_values(
+                    TuningSettings, given,
+                    parameters=made.get('consistency', ConsistencyParameters()))
+            elif given:
+                made[group.name] = settings_from_values(group.settings, given)
         return cls(**made)
 
     def values(self) -> dict[str, Any]:

@@ -51,7 +51,7 @@ class ParameterSpec:
     unit: str = ''
     bounds: tuple[float, float] | None = None  # inclusive
     choices: tuple[str, ...] = ()
-    enum: type[Choice] | None = None  # the values are its members (choices: their names)
+    enum: type[Choice] | None = None  # a checked value becomes its member (choices: their values)
 
     @property
     def kind(self) -> type:
@@ -197,10 +197,10 @@ def settings_from_values(settings_class: type, values: Mapping[str, Any], **extr
 
     Returns
     -------
-    The instance; ValueError names the first bad value.
+    The instance; ValueError names the first bad value (the class checks them: `Settings`).
     """
-    chosen = {spec.name: spec.check(values[spec.name])
-              for spec in _specs(settings_class) if spec.name in values}
+    chosen = {spec.name: values[spec.name] for spec in _specs(settings_class)
+              if spec.name in values}
     return settings_class(**chosen, **extra)
 
 
