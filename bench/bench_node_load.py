@@ -306,7 +306,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             print(f'  last / second bucket {buckets[-1] / buckets[1]:.2f}, largest / smallest '
                   f'of the buckets after the first {max(buckets[1:]) / min(buckets[1:]):.2f}')
     if reference:
-        from map_consistency_ros.ros.settings import NodeSettings
+        from map_consistency_ros.core.configuration import NodeSettings
         threads = next((int(value.split(':=')[1]) for value in parameters
                         if value.startswith('update_threads:=')), NodeSettings().update_threads)
         alone = in_process(stamps, ranges, poses, model, path_every, threads) * 1e3

@@ -121,9 +121,10 @@ def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessme
 def verdict_settings(args: argparse.Namespace):
     """The paper's parameters and the explanation settings; bad values become InputError."""
     try:
-        return options.parameters_from_args(args), options.explanation_from_args(args)
+        config = options.configuration(args, ('consistency', 'explanation'))
     except ValueError as error:
         raise InputError('options', str(error)) from None
+    return config.consistency, config.explanation
 
 
 @dataclass(frozen=True)

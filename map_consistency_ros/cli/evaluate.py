@@ -138,11 +138,12 @@ def _settings(args: argparse.Namespace) -> tuple[SuiteParameters, runner.Measure
         settings = runner.MeasureSettings(
             max_range=args.max_range, test=ConsistencyParameters(),
             baseline=BaselineParameters(cell_size=args.cell_size))
-        for value in [*args.alphas, *args.binomial_alphas, *args.local_alphas]:
-            if not 0.0 < value < 1.0:
-                raise ValueError(f'swept levels must lie in (0, 1), got {value}')
-        if min(args.flag_windows) < 0:
-            raise ValueError(f'flag windows must not be negative, got {min(args.flag_windows)}')
+        # every swept value within its parameter's declared range, before the sweep starts
+        for name, swept in (('alpha', args.alphas), ('binomial_alpha', args.binomial_alphas),
+                            ('local_alpha', args.local_alphas),
+                            ('flag_window', args.flag_windows)):
+            for value in swept:
+                replace(settings.test, **{name: value})
         for value in args.quantiles:
             replace(settings.baseline, quantile=value)
     except ValueError as error:

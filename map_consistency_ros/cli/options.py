@@ -11,8 +11,9 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from map_consistency_ros.core.configuration import Configuration
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.parameters import ParameterSpec, settings_from_values, specs
+from map_consistency_ros.core.parameters import ParameterSpec, specs
 from map_consistency_ros.core.verdict import ExplanationSettings
 
 
@@ -87,13 +88,20 @@ def fov_radians(args: argparse.Namespace) -> float | None:
     return None if args.fov is None else math.radians(args.fov)
 
 
-def parameters_from_args(args: argparse.Namespace,
-                         base: dict[str, Any] | None = None) -> ConsistencyParameters:
-    """ConsistencyParameters from the parsed options over `base` (ValueError names a bad one)."""
-    return settings_from_values(ConsistencyParameters, parameter_values(args, base))
+def configuration(args: argparse.Namespace, groups: Sequence[str],
+                  base: dict[str, Any] | None = None) -> Configuration:
+    """The configuration of the parsed options over `base`.
 
+    Parameters
+    ----------
+    args : parsed options (the parameter options of `add_parameter_arguments` among them)
+    groups : the configuration's groups the command takes from its options ('consistency',
+        'explanation', ...); the others keep their defaults (an option of the command may
+        share a name with a parameter of a group it does not use: --max-range)
+    base : values under the options (a parameter file's)
 
-def explanation_from_args(args: argparse.Namespace,
-                          base: dict[str, Any] | None = None) -> ExplanationSettings:
-    """ExplanationSettings from the parsed options over `base` (ValueError names a bad one)."""
-    return settings_from_values(ExplanationSettings, parameter_values(args, base))
+    Returns
+    -------
+    The configuration; ValueError names a bad value.
+    """
+    return Configuration.from_values(parameter_values(args, base), groups)

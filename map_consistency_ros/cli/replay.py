@@ -39,22 +39,21 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from map_consistency_ros.cli import check, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core.consistency import ConsistencyParameters
+from map_consistency_ros.core.configuration import Configuration, unknown_parameters
 from map_consistency_ros.core.geometry import ScanSet
 from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
                                            KeyframeEstimate, LivePipeline, LiveVerdict,
                                            LoopClosure, MonitorSettings, MonitorSnapshot,
                                            NodeEvent, PoseGraphCounts, PoseGraphNodes,
                                            PoseSample, Scan)
-from map_consistency_ros.core.parameters import settings_from_values, specs, unknown_names
-from map_consistency_ros.core.verdict import Assessment, ExplanationSettings
+from map_consistency_ros.core.verdict import Assessment
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (NEW_NODE_EVENT_TYPE, PATH_TYPE, POSE_SOURCE_TYPES,
@@ -257,18 +256,28 @@ def parameter_values(args: argparse.Namespace, base: dict | None = None) -> dict
 
 def parameter_file_warnings(values: dict) -> list[str]:
     """A line for each name of a parameter file that is no node parameter."""
-    from map_consistency_ros.ros.settings import PARAMETER_NAMES
-    return unknown_names(values, PARAMETER_NAMES + ('use_sim_time',))
+    return unknown_parameters(values, foreign=('use_sim_time',))
 
 
-def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
-    """The reader of the bags named by parsed replay options (enter it to open); `values`
-    are the parameters (default: from the options)."""
-    values = parameter_values(args) if values is None else values
+def configuration(values: dict, groups: tuple[str, ...] | None = None) -> Configuration:
+    """The configuration of the parameter values (every group, or `groups`), all checked as
+    the node checks them, so a parameter file that would stop the node stops replay too;
+    InputError names a bad value."""
     try:
-        max_range = settings_from_values(FeedSettings, values).max_range
+        return Configuration.from_values(values, groups)
     except ValueError as error:
         raise InputError('parameters', str(error)) from None
+
+
+def open_bag(args: argparse.Namespace, values: dict | None = None,
+             config: Configuration | None = None) -> BagReader:
+    """The reader of the bags named by parsed replay options (enter it to open); `values`
+    are the parameters (default: from the options), `config` their configuration (default:
+    the input group's, all that opening needs)."""
+    if config is None:
+        values = parameter_values(args) if values is None else values
+        config = configuration(values, ('feed',))
+    max_range = config.feed.max_range
     topics = BagTopics(scan=args.scan_topic, poses=args.pose_topic,
                        constraints=args.constraints_topic, graph=args.graph_topic,
                        pose_graph=args.pose_graph_topic, new_node_event=args.new_node_topic,
@@ -276,40 +285,29 @@ def open_bag(args: argparse.Namespace, values: dict | None = None) -> BagReader:
     return BagReader(args.bags, topics, max_range=max_range)
 
 
-def node_parameters(values: dict) -> dict:
-    """Every node parameter as the node would take it (all checked, so a parameter file that
-    would stop the node stops replay too); replay applies those of the feed, the monitor and
-    the test."""
-    from map_consistency_ros.ros.settings import NODE_GROUPS
-    checked = {}
-    try:
-        for _, group in NODE_GROUPS:
-            settings = settings_from_values(group, values)
-            checked.update({spec.name: getattr(settings, spec.name) for spec in specs(group)})
-    except ValueError as error:
-        raise InputError('parameters', str(error)) from None
-    return checked
-
-
-def make_pipeline(values: dict, pose_type: str, graph: bool = False) -> LivePipeline:
-    """The node's live pipeline with the node's parameters; the pose source is the bag topic's
-    type, or slam_toolbox when the bag has its graph markers beside its poses (`graph`)."""
+def make_pipeline(config: Configuration, pose_type: str, graph: bool = False) -> LivePipeline:
+    """The node's live pipeline with the node's configuration; the pose source is the bag
+    topic's type, or slam_toolbox when the bag has its graph markers beside its poses
+    (`graph`)."""
     source = 'slam_toolbox' if graph else next(
         name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
-    values = dict(values, pose_source=source)
-    return LivePipeline(settings_from_values(ConsistencyParameters, values),
-                        settings_from_values(MonitorSettings, values),
-                        settings_from_values(FeedSettings, values),
-                        settings_from_values(ExplanationSettings, values))
+    return LivePipeline(config.consistency, config.monitor,
+                        replace(config.feed, pose_source=source), config.explanation)
 
 
-def replay_bag(args: argparse.Namespace, bag: BagReader,
-               values: dict | None = None) -> tuple[MonitorSnapshot, Replay, dict]:
-    """Run the monitor over an open bag; the snapshot, the replay and the report details."""
+def replay_bag(args: argparse.Namespace, bag: BagReader, values: dict | None = None,
+               config: Configuration | None = None) -> tuple[MonitorSnapshot, Replay, dict]:
+    """Run the monitor over an open bag; the snapshot, the replay and the report details.
+    `values` are the parameters (default: from the options), `config` their configuration
+    (default: made from them); the laser offset not given is the bag's."""
     values = parameter_values(args) if values is None else values
+    config = configuration(values) if config is None else config
     offset, offset_source = _laser_offset(bag, values)
-    parameters = node_parameters(dict(values, laser_offset=tuple(offset)))
-    pipeline = make_pipeline(parameters, bag.pose_type, bag.has_graph)
+    try:
+        config = replace(config, monitor=replace(config.monitor, laser_offset=tuple(offset)))
+    except ValueError as error:
+        raise InputError('parameters', str(error)) from None
+    pipeline = make_pipeline(config, bag.pose_type, bag.has_graph)
     feed = pipeline.feed
     replay = Replay(bag, pipeline)
     with ProgressBar('replaying', enabled=not args.quiet) as progress:
@@ -349,7 +347,7 @@ def replay_bag(args: argparse.Namespace, bag: BagReader,
         # the estimate the verdict judged, as the node's ~/report names it (core/live/_feed.py)
         'judged_stamp': snapshot.estimate_stamp,
         'judged_keyframes': snapshot.keyframe_count,
-        'node_parameters': dict(parameters, pose_source=feed.settings.pose_source),
+        'node_parameters': dict(config.values(), pose_source=feed.settings.pose_source.value),
     }
     if feed.bridge_counts is not None:
         details['slam_toolbox_bridge'] = asdict(feed.bridge_counts)
@@ -503,9 +501,10 @@ def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
     """Replay the bags named by parsed `replay` options and judge the final map (the one code
     path of `replay` and of `batch` for bags)."""
     values = parameter_values(args) if values is None else values
-    with open_bag(args, values) as bag:
+    config = configuration(values)
+    with open_bag(args, values, config) as bag:
         started = time.perf_counter()
-        snapshot, replay, details = replay_bag(args, bag, values)
+        snapshot, replay, details = replay_bag(args, bag, values, config)
         if snapshot.result is None:
             raise InputError(bag.source, f'no keyframes: {replay.stats.scans} scans on '
                                          f'{bag.topics.scan} and no pose of {bag.pose_topic} '

@@ -30,7 +30,6 @@ from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult
                                               tune_dcs)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.geometry import SensorModel
-from map_consistency_ros.core.parameters import settings_from_values
 from map_consistency_ros.core.verdict import Assessment, explain
 from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
@@ -95,11 +94,10 @@ def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        settings = settings_from_values(TuningSettings, options.parameter_values(args),
-                                        parameters=options.parameters_from_args(args))
-        explanation = options.explanation_from_args(args)
+        config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
     except ValueError as error:
         raise InputError('options', str(error)) from None
+    settings, explanation = config.tuning, config.explanation
     content, log = load_graph(args)
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)

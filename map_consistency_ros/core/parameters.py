@@ -2,20 +2,43 @@
 
 A settings field declared with `parameter(...)` carries its description, unit, range and
 allowed choices. From that one definition the node declares its ROS parameters, the CLI builds
-its options, `config/map_consistency.yaml` is generated and every value from any of them is
-checked (`settings_from_values`). The type of a parameter is its default's; an integer is
-accepted where a float is expected (YAML writes `8` for 8.0), a bool never passes as a number.
+its options, `config/map_consistency.yaml` is generated and every value is checked: a settings
+dataclass derives from `Settings`, whose `__post_init__` checks each parameter field against
+its declaration, however the instance is made (`settings_from_values`, the constructor,
+`dataclasses.replace`); a settings class writes by hand only the invariants that tie fields
+together. The type of a parameter is its default's; an integer is accepted where a float is
+expected (YAML writes `8` for 8.0), a bool never passes as a number. A choice among names is a
+`Choice` enum: its members are the strings they stand for (they compare, hash, format and
+serialise as them), so parameter files, reports and comparisons with plain strings are the same.
 """
 from __future__ import annotations
 
 import difflib
+import functools
 import math
+import numbers
 import textwrap
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import MISSING, dataclass, field, fields
+from enum import Enum
 from typing import Any
 
 _META = 'parameter'
+
+
+class Choice(str, Enum):
+    """A parameter's choice among names: each member is the string it stands for.
+
+    The str mixin makes a member equal to, hash as and serialise (JSON) as its value; `str()`
+    and `format()` give the value too (Python 3.11 would give `Class.MEMBER`), so reports and
+    messages read as with plain strings.
+    """
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
 
 
 @dataclass(frozen=True)
@@ -28,10 +51,12 @@ class ParameterSpec:
     unit: str = ''
     bounds: tuple[float, float] | None = None  # inclusive
     choices: tuple[str, ...] = ()
+    enum: type[Choice] | None = None  # a checked value becomes its member (choices: their values)
 
     @property
     def kind(self) -> type:
-        """bool, int, float, str or tuple (a fixed-length list of floats)."""
+        """bool, int, float, str or tuple (a fixed-length list of floats); str for a Choice
+        (the default is the member's plain string)."""
         return type(self.default)
 
     @property
@@ -45,14 +70,17 @@ class ParameterSpec:
         return text
 
     def check(self, value: Any) -> Any:
-        """The value in the parameter's type; ValueError naming the parameter otherwise."""
+        """The value in the parameter's type (a member of `enum` for a Choice); ValueError
+        naming the parameter otherwise."""
+        if self.enum is not None and isinstance(value, self.enum):
+            return value
         value = _typed(self, value)
         if self.bounds is not None and not self.bounds[0] <= value <= self.bounds[1]:
             raise ValueError(f'{self.name}: {value!r} is outside [{self.bounds[0]:g}, '
                              f'{self.bounds[1]:g}]')
         if self.choices and value not in self.choices:
             raise ValueError(f'{self.name}: {value!r} is not one of {", ".join(self.choices)}')
-        return value
+        return value if self.enum is None else self.enum(value)
 
 
 def _type_name(value: Any) -> str:
@@ -60,21 +88,29 @@ def _type_name(value: Any) -> str:
         type(value), f'a {type(value).__name__}')
 
 
+def _number(value: Any) -> bool:
+    # numbers.Real takes numpy's scalars (a setting swept over an array) but not numpy's bool
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 def _typed(spec: ParameterSpec, value: Any) -> Any:
     expected = spec.kind
     if expected is tuple:
         if (not isinstance(value, (list, tuple)) or len(value) != len(spec.default)
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                           for v in value)):
+                or not all(_number(v) for v in value)):
             raise ValueError(f'{spec.name}: expected a list of {len(spec.default)} numbers, '
                              f'got {value!r}')
         values = tuple(float(v) for v in value)
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f'{spec.name}: values must be finite, got {value!r}')
         return values
-    if expected is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)  # documented: integers stand for floats
-    if type(value) is not expected:
+    if expected is float and _number(value):
+        value = float(value)  # documented: integers stand for floats
+    elif expected is int and isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        value = int(value)
+    elif expected is str and isinstance(value, str):
+        value = str(value)
+    elif type(value) is not expected:
         raise ValueError(f'{spec.name}: expected {_type_name(spec.default)}, got '
                          f'{_type_name(value)} {value!r}')
     if expected is float and not math.isfinite(value):
@@ -84,30 +120,87 @@ def _typed(spec: ParameterSpec, value: Any) -> Any:
 
 def parameter(default: Any, description: str, unit: str = '',
               bounds: tuple[float, float] | None = None,
-              choices: Sequence[str] = ()) -> Any:
-    """A dataclass field that is also a user-facing parameter (see the module docstring)."""
+              choices: Sequence[str] | type[Choice] = ()) -> Any:
+    """A dataclass field that is also a user-facing parameter (see the module docstring).
+
+    Parameters
+    ----------
+    default : the value when none is given; its type is the parameter's (a member of
+        `choices` when that is a Choice enum)
+    description, unit : the documentation (help texts, the parameter file, docs/node.md)
+    bounds : inclusive range of a number
+    choices : the allowed strings, or a Choice enum whose members are
+
+    Returns
+    -------
+    A dataclasses field carrying the declaration as metadata.
+    """
+    enum = choices if isinstance(choices, type) and issubclass(choices, Choice) else None
+    if enum is not None:
+        default = enum(default)
+        choices = tuple(member.value for member in enum)
     metadata = {_META: dict(description=description, unit=unit, bounds=bounds,
-                            choices=tuple(choices))}
+                            choices=tuple(choices), enum=enum)}
     return field(default=default, metadata=metadata)
 
 
-def specs(settings_class: type) -> list[ParameterSpec]:
-    """The parameters of a settings dataclass, in field order (fields without metadata,
-    e.g. nested settings, are not parameters)."""
+@functools.cache
+def _specs(settings_class: type) -> tuple[ParameterSpec, ...]:
     found = []
     for item in fields(settings_class):
         meta = item.metadata.get(_META)
         if meta is None or item.default is MISSING:
             continue
-        found.append(ParameterSpec(name=item.name, default=item.default, **meta))
-    return found
+        # a Choice's default is its plain string: the parameter file, the ROS parameter and
+        # the option's default are strings
+        default = item.default.value if meta['enum'] is not None else item.default
+        found.append(ParameterSpec(name=item.name, default=default, **meta))
+    return tuple(found)
+
+
+def specs(settings_class: type) -> list[ParameterSpec]:
+    """The parameters of a settings dataclass, in field order (fields without metadata,
+    e.g. nested settings, are not parameters).
+
+    Parameters
+    ----------
+    settings_class : a dataclass whose parameter fields are declared with `parameter(...)`
+
+    Returns
+    -------
+    One ParameterSpec per parameter field.
+    """
+    return list(_specs(settings_class))
+
+
+class Settings:
+    """Base of the settings dataclasses: every parameter field is checked against its
+    declaration when an instance is made, and stored in its parameter's type (8 -> 8.0 for a
+    float, a list -> a tuple, a string -> its Choice member). A subclass that checks more (an
+    invariant between fields) calls `super().__post_init__()` first."""
+
+    def __post_init__(self) -> None:
+        for spec in _specs(type(self)):
+            # frozen dataclasses: the typed value replaces the given one
+            object.__setattr__(self, spec.name, spec.check(getattr(self, spec.name)))
 
 
 def settings_from_values(settings_class: type, values: Mapping[str, Any], **extra: Any):
-    """An instance of `settings_class` from the values of its parameters (others in `values`
-    are ignored; missing ones take their defaults). ValueError names a bad one."""
-    chosen = {spec.name: spec.check(values[spec.name])
-              for spec in specs(settings_class) if spec.name in values}
+    """An instance of `settings_class` from the values of its parameters.
+
+    Parameters
+    ----------
+    settings_class : a settings dataclass (see `Settings`)
+    values : name -> value; names that are not parameters of the class are ignored, missing
+        parameters take their defaults
+    extra : further constructor arguments (fields that are not parameters)
+
+    Returns
+    -------
+    The instance; ValueError names the first bad value (the class checks them: `Settings`).
+    """
+    chosen = {spec.name: values[spec.name] for spec in _specs(settings_class)
+              if spec.name in values}
     return settings_class(**chosen, **extra)
 
 

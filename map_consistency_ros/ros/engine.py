@@ -25,7 +25,7 @@ import numba
 from map_consistency_ros.core.live import (GraphSnapshot, KeyframeEstimate, LivePipeline,
                                            LiveVerdict, PoseGraphNodes, UpdateSummary, warm_up)
 from map_consistency_ros.ros.diagnostics import not_monitoring
-from map_consistency_ros.ros.settings import NodeSettings
+from map_consistency_ros.core.configuration import NodeSettings
 
 if TYPE_CHECKING:
     from map_consistency_ros.ros.intake import Intake

@@ -24,13 +24,13 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
-from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot,
+from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot, PoseSource,
                                            KeyframeEstimate, PoseSample, Record, Scan)
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros import slam_toolbox_graph
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.qos import GRAPH, RELIABLE, SINGLE_POSES, scan_qos
-from map_consistency_ros.ros.settings import NodeSettings
+from map_consistency_ros.core.configuration import NodeSettings, Reliability
 
 # the topic each record comes from, for the input-problem reports
 RECORD_TOPICS = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
@@ -94,7 +94,7 @@ class Intake:
         node, settings, feed_settings = self._node, self._settings, self._feed_settings
         node.create_subscription(
             message_class(messages.SCAN_TYPE), 'scan', self._on_scan,
-            scan_qos(settings.scan_queue_depth, settings.scan_reliability == 'reliable'),
+            scan_qos(settings.scan_queue_depth, settings.scan_reliability == Reliability.RELIABLE),
             callback_group=MutuallyExclusiveCallbackGroup(),
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_scans_lost))
         poses = MutuallyExclusiveCallbackGroup()
@@ -102,7 +102,7 @@ class Intake:
         if feed_settings.slam_toolbox_graph:
             slam_toolbox_graph.subscribe(node, poses, self._convert, self._convert_bytes,
                                          self._queue_pose)
-        elif feed_settings.pose_source != 'path':
+        elif feed_settings.pose_source != PoseSource.PATH:
             node.create_subscription(message_class(pose_type), 'pose',
                                      lambda msg: self._on_pose(pose_type, msg), SINGLE_POSES,
                                      callback_group=poses)

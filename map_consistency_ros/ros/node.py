@@ -24,18 +24,15 @@ from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedEx
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from map_consistency_ros.core.backend import TuningSettings
-from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.live import FeedSettings, LivePipeline, MonitorSettings
-from map_consistency_ros.core.parameters import (ParameterSpec, settings_from_values, specs,
-                                                 unknown_names)
-from map_consistency_ros.core.verdict import ExplanationSettings
+from map_consistency_ros.core.configuration import (PARAMETERS, Configuration, ExecutorKind,
+                                                    NodeSettings, unknown_parameters)
+from map_consistency_ros.core.live import LivePipeline
+from map_consistency_ros.core.parameters import ParameterSpec
 from map_consistency_ros.ros import slam_toolbox_graph
 from map_consistency_ros.ros.engine import Engine
 from map_consistency_ros.ros.intake import Intake
 from map_consistency_ros.ros.outputs import Outputs
 from map_consistency_ros.ros.services import Services
-from map_consistency_ros.ros.settings import NODE_GROUPS, PARAMETER_NAMES, NodeSettings
 
 # Parameters every rclpy node has, and per-topic QoS overrides: not ours, not unknown.
 _FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
@@ -59,15 +56,14 @@ class MapConsistencyNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('map_consistency', **kwargs)
         values = self._declare_parameters()
-        for warning in unknown_names(self._override_names(), PARAMETER_NAMES):
+        for warning in unknown_parameters(self._override_names()):
             self.get_logger().warning(warning)
-        self._settings: NodeSettings = settings_from_values(NodeSettings, values)
-        feed_settings = settings_from_values(FeedSettings, values)
-        self.pipeline = LivePipeline(settings_from_values(ConsistencyParameters, values),
-                                     settings_from_values(MonitorSettings, values), feed_settings,
-                                     settings_from_values(ExplanationSettings, values))
-        tuning = settings_from_values(TuningSettings, values,
-                                      parameters=self.pipeline.feed.parameters)
+        config = Configuration.from_values(values)
+        self._settings: NodeSettings = config.node
+        feed_settings = config.feed
+        self.pipeline = LivePipeline(config.consistency, config.monitor, feed_settings,
+                                     config.explanation)
+        tuning = config.tuning
         wake = threading.Event()  # records queued, a job submitted, a stop
         self.engine = Engine(self.pipeline, self._settings, self.get_logger(), wake)
         self.intake = Intake(self, self._settings, feed_settings,
@@ -84,13 +80,12 @@ class MapConsistencyNode(Node):
 
     def _declare_parameters(self) -> dict:
         values = {}
-        for _, group in NODE_GROUPS:
-            for spec in specs(group):
-                value = self.declare_parameter(spec.name, _ros_default(spec),
-                                               _descriptor(spec)).value
-                # arrays come back as array.array or list: our check takes lists
-                sequence = not isinstance(value, (str, bool, int, float)) and value is not None
-                values[spec.name] = list(value) if sequence else value
+        for spec in PARAMETERS:
+            value = self.declare_parameter(spec.name, _ros_default(spec),
+                                           _descriptor(spec)).value
+            # arrays come back as array.array or list: our check takes lists
+            sequence = not isinstance(value, (str, bool, int, float)) and value is not None
+            values[spec.name] = list(value) if sequence else value
         return values
 
     def _override_names(self) -> list[str]:
@@ -108,7 +103,7 @@ class MapConsistencyNode(Node):
         return self.node_services.answering
 
     @property
-    def executor_kind(self) -> str:
+    def executor_kind(self) -> ExecutorKind:
         """The executor the node's messages need (NodeSettings.executor)."""
         return self._settings.executor
 
@@ -125,7 +120,7 @@ class MapConsistencyNode(Node):
 
 def _message_executor(node: MapConsistencyNode) -> Executor:
     """The executor that takes the node's messages (NodeSettings.executor)."""
-    if node.executor_kind == 'events':
+    if node.executor_kind == ExecutorKind.EVENTS:
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:  # an rclpy older than Jazzy's 7.1 releases that have it

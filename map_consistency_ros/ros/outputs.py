@@ -26,7 +26,7 @@ from map_consistency_ros.ros.engine import Engine
 from map_consistency_ros.ros.intake import Intake
 from map_consistency_ros.ros.markers import MarkerUpdates
 from map_consistency_ros.ros.qos import LATCHED, RELIABLE
-from map_consistency_ros.ros.settings import NodeSettings
+from map_consistency_ros.core.configuration import NodeSettings
 
 
 class Outputs:

@@ -26,7 +26,7 @@ from map_consistency_ros.core.verdict import explain
 from map_consistency_ros.ros.diagnostics import not_monitoring
 from map_consistency_ros.ros.engine import Engine, ExplanationFailed, NotMonitoring, ShuttingDown
 from map_consistency_ros.ros.outputs import Outputs
-from map_consistency_ros.ros.settings import NodeSettings
+from map_consistency_ros.core.configuration import NodeSettings
 
 SHUTTING_DOWN = 'the node is shutting down'
 

@@ -43,10 +43,10 @@ def test_evaluate_writes_the_write_up(strict_json, shared_data, tmp_path, capsys
 
 
 @pytest.mark.parametrize('extra, message', [
-    (['--alphas', '1.5'], 'swept levels must lie in (0, 1)'),
+    (['--alphas', '1.5'], 'alpha: 1.5 is outside [1e-300, 0.5]'),
     (['--quantiles', '2'], 'quantile'),
     (['--workers', '0'], '--workers'),
-    (['--flag-windows', '-1'], 'flag windows'),
+    (['--flag-windows', '-1'], 'flag_window: -1 is outside [0, 1000]'),
     (['--part-size', '3'], 'part_size'),
     (['--data', '/nonexistent/folder'], 'no such file'),
 ])

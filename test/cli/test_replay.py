@@ -445,9 +445,8 @@ def test_every_node_parameter_goes_through_params_file(strict_json, round_trip, 
     """The node's parameter file drives replay: every parameter is checked and reported."""
     import yaml
 
-    from map_consistency_ros.core.parameters import specs
-    from map_consistency_ros.ros.settings import NODE_GROUPS
-    values = {spec.name: _changed(spec) for _, group in NODE_GROUPS for spec in specs(group)}
+    from map_consistency_ros.core.configuration import PARAMETERS
+    values = {spec.name: _changed(spec) for spec in PARAMETERS}
     values['pose_source'] = 'path'  # the bag's pose topic is a Path
     params = tmp_path / 'params.yaml'
     params.write_text(yaml.safe_dump({'/map_consistency': {'ros__parameters': values}}))

@@ -1,12 +1,20 @@
-"""Parameters on the settings dataclasses: types, ranges, names, the generated YAML."""
+"""Parameters on the settings dataclasses: types, ranges, names, the generated YAML; the one
+configuration built from them."""
+import json
 import math
+from dataclasses import replace
 
+import numpy as np
 import pytest
 import yaml
 
 from map_consistency_ros.core.backend import TuningSettings
+from map_consistency_ros.core import configuration
+from map_consistency_ros.core.configuration import (PARAMETER_NAMES, Configuration, ExecutorKind,
+                                                    NodeSettings, Reliability, unknown_parameters)
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.live import FeedSettings, MonitorSettings
+from map_consistency_ros.core.live import FeedSettings, MonitorSettings, PoseSource
+from map_consistency_ros.core.verdict import PAIR_CLASSES, PairClass
 from map_consistency_ros.core.parameters import (closest_name, settings_from_values, specs,
                                                  unknown_names, yaml_document)
 
@@ -37,7 +45,7 @@ def test_integers_stand_for_floats_and_nothing_else_passes():
 
 
 def test_ranges_choices_and_lists():
-    with pytest.raises(ValueError, match=r'alpha: 0.7 is outside \[1e-09, 0.5\]'):
+    with pytest.raises(ValueError, match=r'alpha: 0.7 is outside \[1e-300, 0.5\]'):
         settings_from_values(ConsistencyParameters, {'alpha': 0.7})
     with pytest.raises(ValueError, match='pose_source: .tf. is not one of path, odometry'):
         settings_from_values(FeedSettings, {'pose_source': 'tf'})
@@ -63,3 +71,85 @@ def test_yaml_document_reads_back_as_the_defaults():
             default = list(spec.default) if isinstance(spec.default, tuple) else spec.default
             assert values[spec.name] == default and type(values[spec.name]) is type(default), \
                 spec.name
+
+
+def test_direct_construction_is_checked_against_the_declared_bounds():
+    """The constructor and dataclasses.replace check as settings_from_values does."""
+    with pytest.raises(ValueError, match=r'alpha: 0.7 is outside \[1e-300, 0.5\]'):
+        ConsistencyParameters(alpha=0.7)
+    with pytest.raises(ValueError, match=r'cell_size: 0.0 is outside \[0.1, 1000\]'):
+        replace(MonitorSettings(), cell_size=0.0)
+    with pytest.raises(ValueError, match=r'keyframe_distance: -1.0 is outside'):
+        FeedSettings(keyframe_distance=-1.0)
+    with pytest.raises(ValueError, match=r'grid_steps: 2 is outside \[3, 10000\]'):
+        TuningSettings(grid_steps=2)
+    with pytest.raises(ValueError, match='expected an integer, got a float 2.5'):
+        ConsistencyParameters(min_points=2.5)
+    with pytest.raises(ValueError, match='stale_timeout: must be finite'):
+        NodeSettings(stale_timeout=math.nan)
+    # stored in the parameter's type: numpy scalars (a sweep over an array), ints for floats
+    made = ConsistencyParameters(alpha=np.float64(0.02), viewpoint_spacing=0,
+                                 min_points=np.int64(5))
+    assert type(made.alpha) is float and made.alpha == 0.02
+    assert type(made.viewpoint_spacing) is float and type(made.min_points) is int
+    assert MonitorSettings(laser_offset=[1, 0, 0]).laser_offset == (1.0, 0.0, 0.0)
+    # an invariant between fields stays a check of its own
+    with pytest.raises(ValueError, match='phi_min < phi_max'):
+        TuningSettings(phi_min=2.0, phi_max=1.0)
+
+
+def test_choices_are_enums_that_read_as_their_strings():
+    settings = FeedSettings(pose_source='odometry')
+    assert settings.pose_source is PoseSource.ODOMETRY and settings.single_poses
+    assert settings.pose_source == 'odometry' and f'{settings.pose_source}' == 'odometry'
+    assert {'odometry': 1}[settings.pose_source] == 1
+    assert json.dumps({PairClass.CHANGE: settings.pose_source}) == '{"change": "odometry"}'
+    assert FeedSettings().pose_source is PoseSource.PATH
+    with pytest.raises(ValueError, match='pose_source: .tf. is not one of path, odometry'):
+        FeedSettings(pose_source='tf')
+    # the parameter itself is a plain string: the parameter file, ROS and the options take it
+    (spec,) = [spec for spec in specs(FeedSettings) if spec.name == 'pose_source']
+    assert type(spec.default) is str and spec.default == 'path' and spec.kind is str
+    assert spec.choices == tuple(member.value for member in PoseSource)
+    assert NodeSettings(executor='multi_threaded').executor is ExecutorKind.MULTI_THREADED
+    assert NodeSettings().scan_reliability is Reliability.BEST_EFFORT
+    assert PAIR_CLASSES == (PairClass.MISALIGNED, PairClass.MINOR, PairClass.CHANGE,
+                            PairClass.UNREGISTERED) == ('misaligned', 'minor', 'change',
+                                                        'unregistered')
+
+
+def test_configuration_from_values():
+    config = Configuration.from_values({'alpha': 0.02, 'cell_size': 4, 'pose_source': 'pose',
+                                        'executor': 'multi_threaded', 'grid_steps': 7,
+                                        'not_a_parameter': object()})
+    assert config.consistency.alpha == 0.02 and config.monitor.cell_size == 4.0
+    assert config.feed.pose_source is PoseSource.POSE
+    assert config.node.executor is ExecutorKind.MULTI_THREADED
+    assert config.tuning.grid_steps == 7 and config.tuning.parameters == config.consistency
+    assert Configuration() == Configuration.from_values({})
+    # the flat values go back in, in the order of the parameter file, choices as strings
+    values = config.values()
+    assert list(values) == list(PARAMETER_NAMES)
+    assert type(values['pose_source']) is str and values['pose_source'] == 'pose'
+    assert Configuration.from_values(values) == config
+    with pytest.raises(ValueError, match=r'max_range: 0.0 is outside \[0.1, 1000\]'):
+        Configuration.from_values({'max_range': 0.0})
+    # only the groups named take values: another command's option of the same name is not one
+    assert Configuration.from_values({'max_range': None, 'alpha': 0.02},
+                                     ('consistency',)).consistency.alpha == 0.02
+    with pytest.raises(ValueError, match='no settings group feeds'):
+        Configuration.from_values({}, ('feeds',))
+    # the retune judges with the test's parameters
+    with pytest.raises(ValueError, match='tuning.parameters'):
+        Configuration(consistency=ConsistencyParameters(alpha=0.02))
+
+
+def test_configuration_groups_and_unknown_names():
+    groups = configuration.GROUPS
+    assert [group.name for group in groups] == ['feed', 'monitor', 'consistency', 'explanation',
+                                                'tuning', 'node']
+    assert [group.settings for group in groups][-1] is NodeSettings
+    assert len(set(PARAMETER_NAMES)) == len(PARAMETER_NAMES)  # a name is one parameter
+    assert unknown_parameters(['stale_timout', 'alpha', 'use_sim_time'],
+                              foreign=('use_sim_time',)) == [
+        "unknown parameter 'stale_timout' ignored; did you mean stale_timeout?"]

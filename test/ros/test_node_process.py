@@ -65,7 +65,7 @@ def _params(tmp_path, text: str) -> str:
 @pytest.mark.parametrize('text, expected', [
     ('    alpha: "0.01"\n', "alpha: expected a float, got a string '0.01'"),
     ('    min_points: 2.5\n', 'min_points: expected an integer, got a float 2.5'),
-    ('    alpha: 0.7\n', 'alpha: 0.7 is outside [1e-09, 0.5]'),
+    ('    alpha: 0.7\n', 'alpha: 0.7 is outside [1e-300, 0.5]'),
     ('    pose_source: tf\n', "pose_source: 'tf' is not one of path"),
     ('    executor: fast\n', "executor: 'fast' is not one of events"),
     ('    update_threads: -1\n', 'update_threads: -1 is outside [0, 1024]'),

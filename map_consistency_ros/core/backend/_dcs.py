@@ -12,8 +12,6 @@ least-squares weight is s^2, i.e. rho(chi2) = chi2 for chi2 <= Phi and
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.linalg
 from numba import njit
 
 from map_consistency_ros.core.geometry import se2
@@ -110,6 +108,7 @@ class SparseSystem:
 
     def solve(self, hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
         """The step -(H + damping I)^-1 g, as (F, 3) per free vertex."""
+        import scipy.sparse.linalg  # where it is used: see _minimum_degree_positions
         data = hessian.copy()
         data[self._diagonal] += damping
         damped = scipy.sparse.csc_matrix((data, self._indices, self._indptr),
@@ -127,6 +126,9 @@ def _minimum_degree_positions(rows: np.ndarray, cols: np.ndarray, size: int) -> 
     """SuperLU's minimum degree ordering of the symmetric pattern (rows, cols), as the position
     of each unknown. It depends on the pattern only, so a diagonally dominant matrix of that
     pattern (always factorable) yields it."""
+    # scipy.sparse (and the scipy.linalg it loads) only where a graph is solved: `check`
+    # imports this package through the configuration (TuningSettings) and solves none
+    import scipy.sparse.linalg
     pattern = scipy.sparse.csc_matrix((np.full(len(rows), -1.0), (rows, cols)),
                                       shape=(size, size))
     pattern.sum_duplicates()

@@ -10,8 +10,6 @@ edges between stamped keyframes: `CONSTRAINT_FIELDS`, one row per edge.
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from map_consistency_ros.core.geometry import se2
 
@@ -190,6 +188,10 @@ def tuning_problem(graph: PoseGraph) -> str | None:
     some map), one without loop closures (DCS scales only those: every Phi gives the same
     map), and information entries beyond MAX_INFORMATION (the solve overflows or drowns).
     """
+    # scipy.sparse only where it is used: `check` imports this package through the
+    # configuration (TuningSettings) and tunes nothing
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
     count = graph.vertex_count
     if graph.edge_count < count - 1:
         return (f'{graph.edge_count} constraints for {count} keyframes: a connected graph needs '

@@ -24,7 +24,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
 from map_consistency_ros.core.backend._dcs import OptimizationResult, SparseSystem, optimize
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, SensorModel, candidate_pairs,
                                                pair_measures, se2)
-from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.parameters import Settings, parameter
 from map_consistency_ros.core.backend._posegraph import PoseGraph
 
 Progress = Callable[[int, int], None]
@@ -32,7 +32,7 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass(frozen=True)
-class TuningSettings:
+class TuningSettings(Settings):
     """Search range and resolution and the test.
 
     The range is the original optimizer tool's; its grid had 40 steps. 20 steps (0.2 apart in
@@ -76,17 +76,10 @@ class TuningSettings:
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.phi_min < self.phi_max:
+        super().__post_init__()
+        # the declared bounds keep both positive; the search needs a range, not a point
+        if not self.phi_min < self.phi_max:
             raise ValueError(f'need 0 < phi_min < phi_max, got {self.phi_min}, {self.phi_max}')
-        if self.grid_steps < 3:
-            raise ValueError(f'grid_steps must be at least 3, got {self.grid_steps}')
-        if not self.tolerance > 0.0 or self.iterations < 1 or self.workers < 0:
-            raise ValueError('tolerance must be positive, iterations >= 1 and workers >= 0')
-        if not min(self.flat_tolerance, self.reuse_tolerance, self.relative_tolerance) >= 0.0:
-            raise ValueError('flat_tolerance, reuse_tolerance and relative_tolerance must not be '
-                             'negative')
-        if not self.initial_damping > 0.0:
-            raise ValueError(f'initial_damping must be positive, got {self.initial_damping}')
 
     def grid(self) -> np.ndarray:
         """The Phi values of the grid, increasing."""

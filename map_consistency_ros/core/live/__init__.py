@@ -6,7 +6,7 @@ pipeline over them all (feed, monitor, both stages), shared by the node, replay 
 warm-up. `monitor` and `pipeline` stay public modules: tests patch them."""
 from map_consistency_ros.core.live._feed import (KEYFRAMED_SOURCES, POSE_SOURCES,
                                                  RESET_CONFIRMATIONS, Applied, FeedSettings,
-                                                 MonitorFeed, PoseKeyframer, ScanGaps)
+                                                 MonitorFeed, PoseKeyframer, PoseSource, ScanGaps)
 from map_consistency_ros.core.live._graph_bridge import (BridgeCounts, BridgeSettings,
                                                          HeadingFit, SlamToolboxBridge,
                                                          fit_rotations, interpolate_rotations,
@@ -23,7 +23,7 @@ __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
     'NodeEvent', 'PoseGraphNodes', 'LoopClosure', 'PoseGraphBridge', 'PoseGraphCounts',
     'FeedSettings', 'MonitorFeed', 'Applied', 'PoseKeyframer', 'ScanGaps', 'warm_up',
-    'POSE_SOURCES', 'KEYFRAMED_SOURCES', 'RESET_CONFIRMATIONS',
+    'PoseSource', 'POSE_SOURCES', 'KEYFRAMED_SOURCES', 'RESET_CONFIRMATIONS',
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',
     'fit_rotations', 'interpolate_rotations',
     'ConsistencyMonitor', 'MonitorSettings', 'MonitorSnapshot', 'UpdateSummary', 'sensor_poses',

@@ -49,12 +49,24 @@ from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, 
                                                     PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    UpdateSummary)
-from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.parameters import Choice, Settings, parameter
 
-POSE_SOURCES = ('path', 'odometry', 'pose', 'pose_with_covariance', 'slam_toolbox',
-                'slam_toolbox_graph')
+
+class PoseSource(Choice):
+    """Where keyframe poses come from (FeedSettings.pose_source; io/messages.py maps each to
+    the message type of its topic)."""
+
+    PATH = 'path'
+    ODOMETRY = 'odometry'
+    POSE = 'pose'
+    POSE_WITH_COVARIANCE = 'pose_with_covariance'
+    SLAM_TOOLBOX = 'slam_toolbox'
+    SLAM_TOOLBOX_GRAPH = 'slam_toolbox_graph'
+
+
+POSE_SOURCES = tuple(PoseSource)
 # Sources whose single poses are keyframed by travel; slam_toolbox's poses go to its bridge.
-KEYFRAMED_SOURCES = ('odometry', 'pose', 'pose_with_covariance')
+KEYFRAMED_SOURCES = (PoseSource.ODOMETRY, PoseSource.POSE, PoseSource.POSE_WITH_COVARIANCE)
 # A stamp gap longer than this many median scan periods counts the scans it must have held;
 # drivers stamp regularly, but keyframe-only logs do not, so the count is an estimate.
 _GAP_PERIODS = 2.5
@@ -70,17 +82,17 @@ RESET_CONFIRMATIONS = 5
 
 
 @dataclass(frozen=True)
-class FeedSettings:
+class FeedSettings(Settings):
     """How input messages become keyframes."""
 
-    pose_source: str = parameter(
-        'path', 'where keyframe poses come from: a keyframe Path on `trajectory`; single '
+    pose_source: PoseSource = parameter(
+        PoseSource.PATH, 'where keyframe poses come from: a keyframe Path on `trajectory`; single '
         'poses on `pose` (Odometry, PoseStamped, PoseWithCovarianceStamped), keyframed by '
         'travel; slam_toolbox: its `pose` (one per accepted scan) and its graph markers on '
         '`graph_visualization`, headings recovered from positions (releases without a pose '
         'graph topic); or slam_toolbox_graph: its node events, loop-closure events and pose '
         'graph (slam_toolbox with pull request 818), full headings; docs/slam_bridges.md',
-        choices=POSE_SOURCES)
+        choices=PoseSource)
     max_range: float = parameter(
         8.0, 'usable laser range, capped by each scan\'s range_max; longer or invalid beams '
         'count as free space', 'm', (0.1, 1000.0))
@@ -94,15 +106,6 @@ class FeedSettings:
         1.0, 'a scan stamped this much before the newest one resets the monitor (a restarted '
         'SLAM stack, a looped bag); 0: never', 's', (0.0, 1e9))
 
-    def __post_init__(self) -> None:
-        if self.pose_source not in POSE_SOURCES:
-            raise ValueError(f'pose_source must be one of {", ".join(POSE_SOURCES)}, '
-                             f'got {self.pose_source!r}')
-        if not (self.keyframe_distance >= 0.0 and self.keyframe_angle >= 0.0):
-            raise ValueError('keyframe_distance and keyframe_angle must not be negative')
-        if not self.reset_stamp_jump >= 0.0:
-            raise ValueError('reset_stamp_jump must not be negative')
-
     @property
     def single_poses(self) -> bool:
         """Whether single poses are keyframed by travel (PoseKeyframer)."""
@@ -111,12 +114,12 @@ class FeedSettings:
     @property
     def slam_toolbox(self) -> bool:
         """Whether poses and graph snapshots go to the slam_toolbox bridge."""
-        return self.pose_source == 'slam_toolbox'
+        return self.pose_source == PoseSource.SLAM_TOOLBOX
 
     @property
     def slam_toolbox_graph(self) -> bool:
         """Whether node events, loop closures and pose graphs go to the pose-graph bridge."""
-        return self.pose_source == 'slam_toolbox_graph'
+        return self.pose_source == PoseSource.SLAM_TOOLBOX_GRAPH
 
 
 class PoseKeyframer:
@@ -280,9 +283,9 @@ class MonitorFeed:
         if isinstance(record, Scan):
             return self._scan(record)
         if isinstance(record, KeyframeEstimate):
-            if self.settings.pose_source != 'path':
+            if self.settings.pose_source != PoseSource.PATH:
                 return Applied(warnings=('a keyframe estimate was given while pose_source is '
-                                         f'{self.settings.pose_source!r}; ignored',))
+                                         f'{self.settings.pose_source.value!r}; ignored',))
             return self._estimate(record.stamps, record.poses, record.stamp)
         if isinstance(record, GraphSnapshot):
             return self._graph(record)
@@ -377,7 +380,7 @@ class MonitorFeed:
         """
         if self.bridge is None:
             return Applied(warnings=('a graph snapshot was given while pose_source is '
-                                     f'{self.settings.pose_source!r}; ignored',))
+                                     f'{self.settings.pose_source.value!r}; ignored',))
         earlier = Applied()
         if self._held is not None:
             held, self._held = self._held, None
@@ -418,7 +421,8 @@ class MonitorFeed:
         bridge = self.graph_bridge
         if bridge is None:
             return Applied(warnings=(f'a slam_toolbox {type(record).__name__} was given while '
-                                     f'pose_source is {self.settings.pose_source!r}; ignored',))
+                                     f'pose_source is {self.settings.pose_source.value!r}; '
+                                     'ignored',))
         try:
             if isinstance(record, NodeEvent):
                 if not bridge.add_node(record.node_id, record.stamp, record.pose):

@@ -43,7 +43,7 @@ from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair
 from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
 from map_consistency_ros.core.live._placement import Placement
 from map_consistency_ros.core.live._scan_buffer import ScanBuffer
-from map_consistency_ros.core.parameters import parameter
+from map_consistency_ros.core.parameters import Settings, parameter
 
 # Batches of at most this many pairs keep a live node's shutdown responsive during a large
 # update (a loop closure, a burst of keyframes).
@@ -51,7 +51,7 @@ MEASURE_CHUNK = 1024
 
 
 @dataclass(frozen=True)
-class MonitorSettings:
+class MonitorSettings(Settings):
     """Bookkeeping of the monitor (the statistics are in ConsistencyParameters)."""
 
     laser_offset: tuple[float, float, float] = parameter(
@@ -76,21 +76,6 @@ class MonitorSettings:
         'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
         'when it arrives: bounds the cost per keyframe in places visited very often; 0: all',
         '', (0, 1_000_000))
-
-    def __post_init__(self) -> None:
-        if len(self.laser_offset) != 3 or not all(math.isfinite(v) for v in self.laser_offset):
-            raise ValueError(f'laser_offset must be 3 finite numbers, got {self.laser_offset}')
-        if self.max_buffered_scans < 1:
-            raise ValueError('max_buffered_scans must be at least 1')
-        if self.max_partners < 0:
-            raise ValueError(f'max_partners must not be negative, got {self.max_partners}')
-        for name in ('stamp_tolerance', 'move_tolerance', 'move_angle_tolerance', 'cell_size',
-                     'max_pose_extent'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'{name} must be a finite non-negative number, got {value}')
-        if self.cell_size <= 0.0:
-            raise ValueError('cell_size must be positive')
 
 
 @dataclass(frozen=True)

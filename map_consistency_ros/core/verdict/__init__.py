@@ -10,7 +10,7 @@ from map_consistency_ros.core.verdict._registration import (RegistrationSettings
                                                             surface_points, symmetric_inverse)
 from map_consistency_ros.core.verdict.explanation import (CHANGE, MINOR, MISALIGNED,
                                                           PAIR_CLASSES, UNREGISTERED,
-                                                          Assessment, ChangedPlace,
+                                                          Assessment, PairClass, ChangedPlace,
                                                           ExplanationSettings, Misalignment,
                                                           PointMoments, RegistrationCache,
                                                           agreeing_registrations, check_map,
@@ -25,7 +25,7 @@ __all__ = [
     'register_submaps',
     'ExplanationSettings', 'Misalignment', 'ChangedPlace', 'Assessment', 'RegistrationCache',
     'explain', 'check_map', 'misaligned_endpoints',
-    'MISALIGNED', 'MINOR', 'CHANGE', 'UNREGISTERED', 'PAIR_CLASSES',
+    'PairClass', 'MISALIGNED', 'MINOR', 'CHANGE', 'UNREGISTERED', 'PAIR_CLASSES',
     'scan_names', 'result_report', 'assessment_report', 'plain', 'to_json',
     # units the verdict is built from, tested on their own
     'point_grid', 'nearest_point', 'symmetric_inverse', 'PointMoments',

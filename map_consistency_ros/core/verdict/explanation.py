@@ -35,17 +35,29 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   inconsistent_endpoints, pair_endpoints,
                                                   robust_statistic, statistics)
 from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
-from map_consistency_ros.core.parameters import parameter, specs
+from map_consistency_ros.core.parameters import Choice, Settings, parameter
 from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
                                                             register_submaps, surface_points)
 
-MISALIGNED, MINOR, CHANGE, UNREGISTERED = 'misaligned', 'minor', 'change', 'unregistered'
-PAIR_CLASSES = (MISALIGNED, MINOR, CHANGE, UNREGISTERED)
+
+
+class PairClass(Choice):
+    """What the second stage makes of a failed pair (Assessment.pair_classes holds the
+    index of its class in this order)."""
+
+    MISALIGNED = 'misaligned'  # a significant correction beyond the tolerance mends it
+    MINOR = 'minor'  # a correction mends it, insignificant or within the tolerance
+    CHANGE = 'change'  # no correction mends it: the world changed between the visits
+    UNREGISTERED = 'unregistered'  # its correction is larger than registration trusts
+
+
+MISALIGNED, MINOR, CHANGE, UNREGISTERED = PairClass
+PAIR_CLASSES = tuple(PairClass)
 _CLASS_CODE = {name: code for code, name in enumerate(PAIR_CLASSES)}
 
 
 @dataclass(frozen=True)
-class ExplanationSettings:
+class ExplanationSettings(Settings):
     """How failed pairs are explained and what the map may bear (defaults: docs/verdict.md)."""
 
     misalignment_tolerance: float = parameter(
@@ -84,10 +96,6 @@ class ExplanationSettings:
         3.0, 'largest place a change can span (people, doors, furniture); a region beyond '
         'registration must show most of its inconsistent end points in larger places', 'm',
         (0.1, 1000.0))
-
-    def __post_init__(self) -> None:
-        for spec in specs(ExplanationSettings):
-            spec.check(getattr(self, spec.name))
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
