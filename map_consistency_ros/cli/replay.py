@@ -119,6 +119,12 @@ def add_topic_arguments(parser: argparse.ArgumentParser) -> None:
                              '(%(default)s)')
 
 
+# the ReplayStats counter of each kind of record (the rest are constraint sets)
+_COUNTERS = {Scan: 'scans', KeyframeEstimate: 'trajectories', PoseSample: 'pose_messages',
+             GraphSnapshot: 'graph_snapshots', NodeEvent: 'node_events',
+             PoseGraphNodes: 'pose_graphs', LoopClosure: 'loop_closures'}
+
+
 @dataclass
 class ReplayStats:
     """Counts and timings of one replay."""
@@ -183,23 +189,8 @@ class Replay:
         return self.pipeline.evaluate()
 
     def _count(self, record) -> None:
-        stats = self.stats
-        if isinstance(record, Scan):
-            stats.scans += 1
-        elif isinstance(record, KeyframeEstimate):
-            stats.trajectories += 1
-        elif isinstance(record, PoseSample):
-            stats.pose_messages += 1
-        elif isinstance(record, GraphSnapshot):
-            stats.graph_snapshots += 1
-        elif isinstance(record, NodeEvent):
-            stats.node_events += 1
-        elif isinstance(record, PoseGraphNodes):
-            stats.pose_graphs += 1
-        elif isinstance(record, LoopClosure):
-            stats.loop_closures += 1
-        else:
-            stats.constraint_sets += 1
+        counter = _COUNTERS.get(type(record), 'constraint_sets')
+        setattr(self.stats, counter, getattr(self.stats, counter) + 1)
 
 
 def _laser_offset(bag: BagReader, values: dict) -> tuple[np.ndarray, str]:
