@@ -87,6 +87,18 @@ def native_log(keyframes: CarmenLog, bag: RawBag,
 
     The bag's laser offset is taken into account (odometry moves the base, poses are the
     laser's); keyframes keep their corrected laser poses exactly.
+
+    Parameters
+    ----------
+    keyframes: the corrected keyframe log (intel.gfs.log), N scans found in the bag by their
+        ranges.
+    bag: the raw bag's scans, odometry and laser offset (io.datasets.read_raw_bag), S scans.
+    settings: the registration onto the keyframes; None for the defaults.
+
+    Returns
+    -------
+    A NativeLog of the S raw scans in bag order. Raises InputError when a keyframe matches no
+    raw scan, ValueError when two keyframes match the same one.
     """
     rows = match_scans(keyframes, bag)
     if len(np.unique(rows)) != len(rows):
@@ -149,6 +161,11 @@ def write_carmen_log(path: Path, native: NativeLog) -> None:
 
     Ranges are written in their shortest float32 form, so that reading them back gives the
     bag's float32 values exactly (the keyframes are found again by identical ranges).
+
+    Parameters
+    ----------
+    path: the gzip log to write (its folder is created, an existing file replaced).
+    native: the placed scans; poses with 6 decimals, stamps in seconds with 6 decimals.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     with gzip.open(path, 'wt', encoding='ascii', compresslevel=9) as stream:
@@ -165,8 +182,20 @@ def write_carmen_log(path: Path, native: NativeLog) -> None:
 
 def relation_errors(stamps: np.ndarray, poses: np.ndarray,
                     relations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (m) and rotation (rad) errors of the relations (`read_relations` rows) whose
-    two stamps are scans of the log (within 1 ms)."""
+    """Errors of a trajectory against the relations whose two stamps are scans of the log.
+
+    Parameters
+    ----------
+    stamps: (S,) increasing scan stamps, seconds.
+    poses: (S, 3) the scans' poses.
+    relations: (R, 5) rows `t1 t2 x y yaw` as io.datasets.read_relations gives them; a
+        relation is used when both stamps lie within 1 ms of a scan's.
+
+    Returns
+    -------
+    (translation errors (F,) metres, rotation errors (F,) radians, absolute) of the F
+    relations used, in file order.
+    """
     first = np.searchsorted(stamps, relations[:, 0]).clip(0, len(stamps) - 1)
     second = np.searchsorted(stamps, relations[:, 1]).clip(0, len(stamps) - 1)
     found = ((np.abs(stamps[first] - relations[:, 0]) < 1e-3)
@@ -195,7 +224,20 @@ class Case:
 
 
 def selection(log: CarmenLog, density: str, keyframes: CarmenLog | None = None) -> np.ndarray:
-    """Rows of `log` at `density`: every n-th record, or those with the keyframes' ranges."""
+    """Rows of `log` at `density`: every n-th record, or those with the keyframes' ranges.
+
+    Parameters
+    ----------
+    log: the full-density log.
+    density: 'n' (a positive integer: every n-th record from the first) or 'keyframes'.
+    keyframes: the keyframe log, needed for 'keyframes' only.
+
+    Returns
+    -------
+    (M,) int64 rows of `log`; for 'keyframes', one per keyframe in the keyframe log's order.
+    Raises ValueError for a density that is neither, or 'keyframes' without the keyframe
+    log, and InputError when a keyframe's ranges are not in `log`.
+    """
     if density == 'keyframes':
         if keyframes is None:
             raise ValueError('the keyframes density needs the keyframe log')
@@ -209,8 +251,19 @@ def selection(log: CarmenLog, density: str, keyframes: CarmenLog | None = None) 
 
 
 def pivot(poses: np.ndarray, stamps: np.ndarray, travel: float = PIVOT_TRAVEL):
-    """(stamp, centre (2,)) where the displaced stretch begins: the first full-density scan at
-    `travel` of the distance travelled, and its position (the centre of the rotations)."""
+    """Where the displaced stretch begins: the first full-density scan at `travel` of the
+    distance travelled.
+
+    Parameters
+    ----------
+    poses: (N, 3) laser poses of the full-density log, in time order.
+    stamps: (N,) their stamps, seconds.
+    travel: fraction of the total travelled distance, in [0, 1].
+
+    Returns
+    -------
+    (stamp of that scan, its position (2,), the centre of the rotations).
+    """
     steps = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     distance = np.concatenate([[0.0], np.cumsum(steps)])
     row = int(np.searchsorted(distance, travel * distance[-1]))
@@ -219,8 +272,22 @@ def pivot(poses: np.ndarray, stamps: np.ndarray, travel: float = PIVOT_TRAVEL):
 
 def displaced(poses: np.ndarray, stamps: np.ndarray, start: float, centre: np.ndarray,
               degrees: float, metres: float) -> tuple[np.ndarray, np.ndarray]:
-    """(poses, moved rows): those at or after `start` turned by `degrees` about `centre` and
-    then shifted by `metres` along SHIFT_HEADING."""
+    """Poses with those at or after `start` turned by `degrees` about `centre` and then
+    shifted by `metres` along SHIFT_HEADING.
+
+    Parameters
+    ----------
+    poses: (N, 3) poses; not changed.
+    stamps: (N,) their stamps, seconds.
+    start: stamp of the first displaced pose (see `pivot`).
+    centre: (2,) centre of the rotation.
+    degrees: rotation, counter-clockwise.
+    metres: length of the shift.
+
+    Returns
+    -------
+    (displaced copy of the poses (N, 3), the rows moved (D,) int64).
+    """
     rotation = np.radians(degrees)
     cos_r, sin_r = np.cos(rotation), np.sin(rotation)
     shift = metres * np.array([np.cos(SHIFT_HEADING), np.sin(SHIFT_HEADING)])
@@ -234,7 +301,18 @@ def displaced(poses: np.ndarray, stamps: np.ndarray, start: float, centre: np.nd
 
 def endpoint_rms(scans: ScanSet, rows: np.ndarray, true_poses: np.ndarray) -> float:
     """RMS distance between the valid end points of `rows` at the scans' poses and at the
-    true poses (all end points of those scans pooled)."""
+    true poses (all end points of those scans pooled).
+
+    Parameters
+    ----------
+    scans: the scans at their (displaced) poses.
+    rows: indices of the scans to compare.
+    true_poses: (N, 3) true poses of all the scans.
+
+    Returns
+    -------
+    The RMS in metres; 0 when `rows` is empty or its scans have no valid end point.
+    """
     if len(rows) == 0:
         return 0.0
     truth = scans.with_poses(true_poses)
@@ -244,7 +322,19 @@ def endpoint_rms(scans: ScanSet, rows: np.ndarray, true_poses: np.ndarray) -> fl
 
 
 def load(case: Case, data: Path, checkout: Path):
-    """(scans of the case, true poses, displaced rows) for `case`."""
+    """The viewpoints `check` tests for `case`, placed as the case displaces them.
+
+    Parameters
+    ----------
+    case: the log, density and displacement.
+    data: the shared data folder (FR079, the Intel keyframe log).
+    checkout: the source tree holding data/density/intel-native.log.gz.
+
+    Returns
+    -------
+    (ScanSet of the V viewpoints, their true poses (V, 3), the displaced viewpoints (D,)
+    int64; empty for the case 'map'). Raises InputError for a missing or malformed log.
+    """
     path = (checkout if case.log == 'intel-native' else data) / LOGS[case.log]
     log = read_carmen_log(path)
     keyframes = (read_carmen_log(data / INTEL_KEYFRAMES)
@@ -267,7 +357,21 @@ def load(case: Case, data: Path, checkout: Path):
 
 def run_case(case: Case, data: Path, checkout: Path) -> dict:
     """The verdict of `check` (its viewpoints, core.verdict.check_map at default settings)
-    on the case, with its runtime, this process's peak memory and the truth."""
+    on the case, with its runtime, this process's peak memory and the truth.
+
+    Parameters
+    ----------
+    case: the case to judge.
+    data: the shared data folder.
+    checkout: the source tree holding data/density/.
+
+    Returns
+    -------
+    A JSON-ready row: the case's fields and name, viewpoint count, verdict, flag and region
+    counts, the largest region (displacement m, rotation deg, scans, registered; None /
+    0 without one), the truth (rotation, shift, end point RMS over all displaced scans and
+    over those of the largest region), check seconds and peak resident MB.
+    """
     from map_consistency_ros.core.verdict import check_map
     scans, true_poses, moved = load(case, data, checkout)
     started = time.perf_counter()
@@ -305,7 +409,18 @@ def _finite(value: float) -> float | None:
 
 
 def all_cases(logs=None, densities=None, cases=None) -> list[Case]:
-    """Every (log, density, case) asked for, FR079 first; None means all."""
+    """Every (log, density, case) asked for, FR079 first; None means all.
+
+    Parameters
+    ----------
+    logs: keys of LOGS, in this order (KeyError for others); None or empty for all.
+    densities: densities to keep among each log's DENSITIES; None for all.
+    cases: keys of CASES, in this order; None or empty for all.
+
+    Returns
+    -------
+    The cases, log outermost, then density, then case.
+    """
     chosen = []
     for log in logs or list(LOGS):
         for density in DENSITIES[log]:
@@ -318,7 +433,21 @@ def all_cases(logs=None, densities=None, cases=None) -> list[Case]:
 
 def run_in_subprocess(case: Case, data: Path, checkout: Path, nice: int = 5,
                       timeout: float | None = None) -> dict:
-    """`run_case` in a fresh `nice`d interpreter with the caller's PYTHONPATH and checkout."""
+    """`run_case` in a fresh `nice`d interpreter with the caller's PYTHONPATH and checkout.
+
+    Parameters
+    ----------
+    case: the case to run.
+    data: the shared data folder.
+    checkout: the source tree holding data/density/.
+    nice: niceness increment of the process.
+    timeout: seconds before the process is killed; None for no limit.
+
+    Returns
+    -------
+    run_case's row plus 'wall_seconds'; for a failed process, the case's fields, name and
+    'error' (the timeout, or the last stderr line or the exit code).
+    """
     command = ['nice', '-n', str(nice), sys.executable, '-m',
                'map_consistency_ros.evaluation.density', 'case', json.dumps(asdict(case)),
                str(data), str(checkout)]
@@ -339,7 +468,16 @@ def run_in_subprocess(case: Case, data: Path, checkout: Path, nice: int = 5,
 
 
 def markdown_table(rows: list[dict]) -> list[str]:
-    """One line per case: verdict, regions, largest region against the truth, cost."""
+    """One line per case: verdict, regions, largest region against the truth, cost.
+
+    Parameters
+    ----------
+    rows: rows of run_in_subprocess (error rows included).
+
+    Returns
+    -------
+    The markdown lines: header, separator, then one per row.
+    """
     lines = ['| log | density | case | scans | verdict | paper flags | flagged | regions | '
              'largest (m, deg, scans) | truth (deg, m; RMS all / region m) | check s | '
              'peak MB |',
@@ -363,8 +501,19 @@ def markdown_table(rows: list[dict]) -> list[str]:
 
 
 def build_native(data: Path, output: Path) -> dict:
-    """Rebuild Intel at its native rate from the data folder into `output`; the relation errors
-    of the odometry placement and of the registered one (metres, degrees)."""
+    """Rebuild Intel at its native rate from the data folder into `output`.
+
+    Parameters
+    ----------
+    data: the shared data folder with intel.gfs.log, intel.orig.bag and intel.relations.
+    output: the gzip CARMEN log to write (see write_carmen_log).
+
+    Returns
+    -------
+    {'scans', 'keyframes', 'registered' (counts), 'relation_errors'}: for 'odometry' and
+    'registered' placement, the relations used and their mean and median errors in metres
+    and degrees. Raises InputError for missing or malformed inputs.
+    """
     from map_consistency_ros.io.datasets import read_raw_bag, read_relations
     native = native_log(read_carmen_log(data / INTEL_KEYFRAMES), read_raw_bag(data / INTEL_BAG))
     write_carmen_log(output, native)
@@ -383,7 +532,22 @@ def build_native(data: Path, output: Path) -> dict:
 def run_suite(cases: list[Case], data: Path, checkout: Path, json_path: Path, doc_path: Path,
               timeout: float | None = None, report=print) -> list[dict]:
     """Every case in its own process, one at a time; the JSON and the markdown table are
-    rewritten after each case so that an interrupted run keeps what it measured."""
+    rewritten after each case so that an interrupted run keeps what it measured.
+
+    Parameters
+    ----------
+    cases: the cases, in order.
+    data: the shared data folder.
+    checkout: the source tree holding data/density/ (recorded in the JSON).
+    json_path: the JSON file of the rows (its folder is created).
+    doc_path: the markdown page of the table (its folder is created).
+    timeout: seconds per case; None for no limit.
+    report: called with each case's table line as it finishes.
+
+    Returns
+    -------
+    The rows of run_in_subprocess, in case order.
+    """
     rows = []
     for case in cases:
         rows.append(run_in_subprocess(case, data, checkout, timeout=timeout))

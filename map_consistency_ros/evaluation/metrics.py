@@ -7,7 +7,18 @@ import numpy as np
 
 
 def specificity_recall(flagged: np.ndarray, inconsistent: np.ndarray) -> tuple[float, float]:
-    """(specificity, recall) of one detector setting over a labelled suite."""
+    """Specificity and recall of one detector setting over a labelled suite.
+
+    Parameters
+    ----------
+    flagged: (M,) bool, the detector's verdict per map (True: inconsistent).
+    inconsistent: (M,) bool, the labels.
+
+    Returns
+    -------
+    (specificity, recall), each in [0, 1]. Raises ValueError when the shapes differ or the
+    labels lack either class.
+    """
     flagged = np.asarray(flagged, dtype=bool)
     inconsistent = np.asarray(inconsistent, dtype=bool)
     if flagged.shape != inconsistent.shape:
@@ -25,7 +36,18 @@ def threshold_sweep(statistic: np.ndarray, inconsistent: np.ndarray) -> np.ndarr
     """Every distinct (threshold, specificity, recall) of "flag the map if statistic < threshold".
 
     Thresholds lie below, between (midpoints) and above the distinct statistics, so the sweep
-    reaches every operating point a threshold can give. Returns (S, 3).
+    reaches every operating point a threshold can give.
+
+    Parameters
+    ----------
+    statistic: (M,) per-map statistic, low meaning inconsistent; non-finite values take no
+        part in choosing thresholds (NaN and +inf are never flagged, -inf always).
+    inconsistent: (M,) bool labels.
+
+    Returns
+    -------
+    (S, 3) rows (threshold, specificity, recall) by increasing threshold; a single row at
+    threshold 0 when no statistic is finite. Raises ValueError as specificity_recall.
     """
     statistic = np.asarray(statistic, dtype=np.float64)
     values = np.unique(statistic[np.isfinite(statistic)])
@@ -42,7 +64,14 @@ def threshold_sweep(statistic: np.ndarray, inconsistent: np.ndarray) -> np.ndarr
 def pareto_frontier(points: np.ndarray) -> np.ndarray:
     """Indices of the points no other point beats in both columns (both maximised).
 
-    Sorted by the first column ascending; duplicates of a frontier point keep one index.
+    Parameters
+    ----------
+    points: (P, 2) points, e.g. (specificity, recall) rows.
+
+    Returns
+    -------
+    (F,) int64 indices into `points`, sorted by the first column ascending; duplicates of a
+    frontier point keep one index.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     # by first column descending, ties by second descending: a point is on the frontier when
@@ -58,7 +87,18 @@ def pareto_frontier(points: np.ndarray) -> np.ndarray:
 
 
 def dominates(frontier: np.ndarray, other: np.ndarray) -> bool:
-    """True when every point of `other` is matched or beaten in both columns by a frontier point."""
+    """Whether a frontier covers other points.
+
+    Parameters
+    ----------
+    frontier: (F, 2) points, both columns maximised.
+    other: (P, 2) points to compare.
+
+    Returns
+    -------
+    True when every point of `other` is matched or beaten in both columns by one frontier
+    point (also when `other` is empty).
+    """
     frontier = np.asarray(frontier, dtype=np.float64).reshape(-1, 2)
     other = np.asarray(other, dtype=np.float64).reshape(-1, 2)
     covered = np.all(frontier[None, :, :] >= other[:, None, :], axis=2)
@@ -66,7 +106,17 @@ def dominates(frontier: np.ndarray, other: np.ndarray) -> bool:
 
 
 def frontier_area(frontier: np.ndarray) -> float:
-    """Area under the staircase of a frontier in the unit square (1 = the point (1, 1) reached)."""
+    """Area under the staircase of a frontier in the unit square.
+
+    Parameters
+    ----------
+    frontier: (P, 2) (specificity, recall) points in [0, 1]; dominated ones are dropped first.
+
+    Returns
+    -------
+    The area: each frontier point's recall times the specificity it adds over the previous
+    point (from 0); 1 when the point (1, 1) is reached.
+    """
     points = np.asarray(frontier, dtype=np.float64).reshape(-1, 2)
     points = points[pareto_frontier(points)]
     area = 0.0

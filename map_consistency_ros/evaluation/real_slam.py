@@ -26,12 +26,36 @@ def _finite(value):
 
 
 def labels(checkout: Path) -> dict:
-    """The labels of every map (data/real_slam/labels.json), by map name."""
+    """The labels of every map (data/real_slam/labels.json), by map name.
+
+    Parameters
+    ----------
+    checkout: the repository checkout holding data/real_slam/.
+
+    Returns
+    -------
+    Map name -> its label entry ('label', 'borderline', 'relation_errors', 'slam', ...).
+    """
     return json.loads((checkout / SUITE / 'labels.json').read_text())['maps']
 
 
 def check(checkout: Path, name: str, reports: Path, timeout: float) -> dict:
-    """`check` of one map in its own process: exit code, wall time and the report's figures."""
+    """`check` of one map in its own process: exit code, wall time and the report's figures.
+
+    Parameters
+    ----------
+    checkout: the repository checkout holding data/real_slam/<name>.log.gz.
+    name: the map's name.
+    reports: folder for the JSON report <name>.json (an old one is removed first).
+    timeout: seconds before the process is killed.
+
+    Returns
+    -------
+    A row: 'map', 'exit_code' (None on timeout), 'wall_seconds', 'error' (the last stderr
+    line when the exit code is neither 0 nor 1, else None) and, when a report was written,
+    'verdict', 'summary_line', 'viewpoints', 'records', 'local_distortion_m' and
+    'misalignments' (non-finite figures as None).
+    """
     report = reports / f'{name}.json'
     report.unlink(missing_ok=True)
     command = [sys.executable, '-m', 'map_consistency_ros.cli.main', 'check',
@@ -60,7 +84,18 @@ def check(checkout: Path, name: str, reports: Path, timeout: float) -> dict:
 
 
 def score(rows: list[dict], truth: dict) -> dict:
-    """Recall and specificity over the maps whose label is not borderline."""
+    """The counts behind recall and specificity over the maps whose label is not borderline.
+
+    Parameters
+    ----------
+    rows: rows of `check`; a row without a verdict counts as not flagged.
+    truth: the labels, as `labels` gives them.
+
+    Returns
+    -------
+    {'caught', 'inconsistent', 'passed', 'consistent'}: recall is caught / inconsistent,
+    specificity passed / consistent.
+    """
     counts = {'caught': 0, 'inconsistent': 0, 'passed': 0, 'consistent': 0}
     for row in rows:
         label = truth[row['map']]
@@ -86,7 +121,17 @@ def _sizes(row: dict) -> str:
 
 
 def table(rows: list[dict], truth: dict) -> list[str]:
-    """Markdown lines: one row per map, then the score."""
+    """Markdown lines: one row per map, then the score.
+
+    Parameters
+    ----------
+    rows: rows of `check`.
+    truth: the labels, as `labels` gives them.
+
+    Returns
+    -------
+    The table's lines, a blank line, and the score of the non-borderline maps.
+    """
     lines = ['| map | SLAM (settings) | viewpoints / scans | keyframe loop relations: max m, '
              'p95 deg | label | verdict (exit) | check s | misaligned regions | local '
              'distortion m |', '|---|---|---|---|---|---|---|---|---|']
@@ -112,7 +157,19 @@ def table(rows: list[dict], truth: dict) -> list[str]:
 
 
 def run_suite(checkout: Path, reports: Path, timeout: float, names=None) -> list[dict]:
-    """`check` of every map (or of `names`), one after another."""
+    """`check` of every map (or of `names`), one after another.
+
+    Parameters
+    ----------
+    checkout: the repository checkout holding data/real_slam/.
+    reports: folder for the reports, created if missing.
+    timeout: seconds per map.
+    names: map names to check; None for all labelled maps.
+
+    Returns
+    -------
+    The rows of `check`, by map name.
+    """
     reports.mkdir(parents=True, exist_ok=True)
     return [check(checkout, name, reports, timeout) for name in sorted(labels(checkout))
             if names is None or name in names]

@@ -70,19 +70,51 @@ class RuntimeRow:
 
 @lru_cache(maxsize=8)
 def cached_log(path: Path) -> CarmenLog:
-    """The log at `path`, read once per process (a pool worker judges many maps of it)."""
+    """The log at `path`, read once per process (a pool worker judges many maps of it).
+
+    Parameters
+    ----------
+    path: a CARMEN log; the cache keeps the last 8 logs read.
+
+    Returns
+    -------
+    The CarmenLog, shared between callers: do not change its arrays. Raises InputError as
+    read_carmen_log (errors are not cached).
+    """
     return read_carmen_log(path)
 
 
 def map_scans(suite_map: SuiteMap, max_range: float | None) -> ScanSet:
-    """The map's scans placed at its poses."""
+    """The map's scans placed at its poses.
+
+    Parameters
+    ----------
+    suite_map: the map; its log is read through cached_log.
+    max_range: usable range in metres; None for the reader's default (see sensor_model).
+
+    Returns
+    -------
+    A ScanSet of the map's N scans at `suite_map.poses`, with the log's beam geometry.
+    """
     log = cached_log(suite_map.log_path)
     return ScanSet.from_ranges(log.ranges[suite_map.scan_indices], suite_map.poses,
                                sensor_model(log, max_range=max_range))
 
 
 def measure_map(suite_map: SuiteMap, settings: MeasureSettings) -> MeasuredMap:
-    """The geometry of one map: our pair measures (map and local) and the baseline's scores."""
+    """The geometry of one map: our pair measures (map and local) and the baseline's scores.
+
+    Parameters
+    ----------
+    suite_map: the map; its incremental solution (`reference_poses`) gives the local pairs.
+    settings: usable range, test parameters (local window, trimming) and baseline parameters.
+
+    Returns
+    -------
+    A MeasuredMap with the map's label, the measures of its candidate pairs, those of the
+    local pairs of its incremental solution, the baseline's per-pair log-likelihoods, and the
+    seconds each detector's geometry took.
+    """
     scans = map_scans(suite_map, settings.max_range)
     reference = scans.with_poses(suite_map.reference_poses)
     keep = settings.test.trim_largest
@@ -103,16 +135,35 @@ def measure_map(suite_map: SuiteMap, settings: MeasureSettings) -> MeasuredMap:
 def measure_suite(maps: Sequence[SuiteMap], settings: MeasureSettings, workers: int | None = None,
                   progress: Progress | None = None,
                   scheduler: str | None = None) -> list[MeasuredMap]:
-    """measure_map over all maps with a process pool (or on the Dask cluster of `scheduler`);
-    results in the order of `maps`."""
+    """measure_map over all maps with a process pool (or on the Dask cluster of `scheduler`).
+
+    Parameters
+    ----------
+    maps: the suite maps.
+    settings: passed to measure_map.
+    workers, progress, scheduler: how the maps are spread, as `pooled`.
+
+    Returns
+    -------
+    One MeasuredMap per map, in the order of `maps`. Raises RuntimeError when a worker died.
+    """
     return pooled(measure_map, maps, (settings,), workers, progress, scheduler)
 
 
 def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParameters,
                  scales: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """(M,) bool: the map fails the test (some scan fails its cascaded test) at `parameters`.
+    """Our test's verdict on every measured map.
 
-    `scales` (per map, from `local_scales` at `parameters.local_alpha`) skips refitting them.
+    Parameters
+    ----------
+    measured: the M measured maps.
+    parameters: the test's parameters.
+    scales: per map, the (N,) local scales from `local_scales` at `parameters.local_alpha`,
+        which skips refitting them; None to fit them here.
+
+    Returns
+    -------
+    (M,) bool: the map fails the test (some scan fails its cascaded test) at `parameters`.
     """
     if scales is None:
         scales = [local_scales(item.local, item.scan_count, parameters) for item in measured]
@@ -124,14 +175,38 @@ def our_verdicts(measured: Sequence[MeasuredMap], parameters: ConsistencyParamet
 
 
 def labels(measured: Sequence[MeasuredMap]) -> np.ndarray:
-    """(M,) bool: the map is inconsistent by construction."""
+    """The labels of the measured maps.
+
+    Parameters
+    ----------
+    measured: the M measured maps.
+
+    Returns
+    -------
+    (M,) bool: the map is inconsistent by construction.
+    """
     return np.array([item.inconsistent for item in measured], dtype=bool)
 
 
 def sweep_ours(measured: Sequence[MeasuredMap], base: ConsistencyParameters,
                alphas: Sequence[float], binomial_alphas: Sequence[float],
                local_alphas: Sequence[float], flag_windows: Sequence[int] = (0,)) -> np.ndarray:
-    """Rows (alpha, binomial_alpha, local_alpha, flag_window, specificity, recall) per setting."""
+    """Our test over a grid of its levels, each setting's specificity and recall.
+
+    Parameters
+    ----------
+    measured: the measured suite (both labels present).
+    base: the parameters the swept ones replace.
+    alphas: pairwise test levels.
+    binomial_alphas: cascaded (binomial) test levels.
+    local_alphas: levels of the local scale fit (the scales are fitted once per value).
+    flag_windows: flag_window values.
+
+    Returns
+    -------
+    (S, 6) rows (alpha, binomial_alpha, local_alpha, flag_window, specificity, recall), one per
+    combination, local_alpha outermost. Raises ValueError as metrics.specificity_recall.
+    """
     truth = labels(measured)
     rows = []
     for local_alpha in local_alphas:
@@ -149,7 +224,19 @@ def sweep_ours(measured: Sequence[MeasuredMap], base: ConsistencyParameters,
 
 def sweep_baseline(measured: Sequence[MeasuredMap], base: BaselineParameters,
                    quantiles: Sequence[float]) -> np.ndarray:
-    """Rows (quantile, threshold, specificity, recall) over every distinct threshold."""
+    """The baseline over its quantiles and every distinct threshold of its statistic.
+
+    Parameters
+    ----------
+    measured: the measured suite (both labels present).
+    base: the baseline parameters the swept quantile replaces.
+    quantiles: quantiles of the per-pair log-likelihoods that make the map statistic.
+
+    Returns
+    -------
+    (S, 4) rows (quantile, threshold, specificity, recall), quantile by quantile, thresholds
+    as metrics.threshold_sweep. Raises ValueError as metrics.specificity_recall.
+    """
     truth = labels(measured)
     rows = []
     for quantile in quantiles:
@@ -162,10 +249,21 @@ def sweep_baseline(measured: Sequence[MeasuredMap], base: BaselineParameters,
 
 def two_stage_flags(item: tuple[SuiteMap, MeasuredMap], settings: MeasureSettings,
                     alphas: Sequence[float], tolerances: Sequence[float]) -> np.ndarray:
-    """(A, T) bool: both stages flag the map at pairwise level alphas[a] and misalignment
-    tolerance tolerances[t] (every other setting at its default), from its measured pairs.
+    """Whether both stages flag one map over a grid of two settings, from its measured pairs.
 
     The registrations do not depend on either setting: one cache serves the whole sweep.
+
+    Parameters
+    ----------
+    item: (map, its MeasuredMap), one item of the pool.
+    settings: usable range and the test parameters the swept alpha replaces.
+    alphas: (A,) pairwise test levels.
+    tolerances: (T,) misalignment tolerances of the second stage (every other explanation
+        setting at its default).
+
+    Returns
+    -------
+    (A, T) bool: both stages flag the map at alphas[a] and tolerances[t].
     """
     suite_map, measured = item
     scans = map_scans(suite_map, settings.max_range)
@@ -188,8 +286,22 @@ def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
                     tolerances: Sequence[float], workers: int | None = None,
                     progress: Progress | None = None,
                     scheduler: str | None = None) -> np.ndarray:
-    """Rows (alpha, tolerance, specificity, recall) of the two-stage verdict over the suite
-    (`measured`: measure_suite of `maps`)."""
+    """The two-stage verdict over the suite for a grid of alphas and tolerances.
+
+    Parameters
+    ----------
+    maps: the suite maps (both labels present).
+    measured: measure_suite of `maps`, in the same order.
+    settings: as two_stage_flags.
+    alphas: pairwise test levels.
+    tolerances: misalignment tolerances.
+    workers, progress, scheduler: how the maps are spread, as `pooled`.
+
+    Returns
+    -------
+    (A * T, 4) rows (alpha, tolerance, specificity, recall), alpha outermost. Raises
+    RuntimeError when a worker died, ValueError as metrics.specificity_recall.
+    """
     truth = np.array([item.inconsistent for item in maps], dtype=bool)
     flags = pooled(two_stage_flags, list(zip(maps, measured)),
                    (settings, tuple(alphas), tuple(tolerances)), workers, progress, scheduler)
@@ -204,8 +316,23 @@ def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
 def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | None,
            progress: Progress | None, scheduler: str | None = None) -> list:
     """function(map, *arguments) for every map on the runner `batch` uses too (cli/pool.py):
-    local processes, or the Dask cluster of `scheduler`; results in map order. A map whose
-    worker process died stops the evaluation: its figures would be wrong without it."""
+    local processes, or the Dask cluster of `scheduler`. A map whose worker process died stops
+    the evaluation: its figures would be wrong without it.
+
+    Parameters
+    ----------
+    function: a picklable module-level function of (map, *arguments).
+    maps: the items, one call each.
+    arguments: the further arguments of every call.
+    workers: local processes; None for one per core, 1 to run in this process.
+    progress: progress(done, total) after each finished map, or None.
+    scheduler: a Dask scheduler address (tcp://host:8786); None for local processes.
+
+    Returns
+    -------
+    The results in map order. Raises RuntimeError naming the map whose worker died; an
+    exception of `function` propagates.
+    """
     results = pool.run_all(function, maps, arguments, workers, scheduler, progress)
     for item, result in zip(maps, results):
         if isinstance(result, pool.WorkerDied):
@@ -222,7 +349,20 @@ def _keyframe_scans(log_path: Path, suite: SuiteParameters, max_range: float | N
 
 def runtime_row(dataset: str, log_path: Path, suite: SuiteParameters,
                 settings: MeasureSettings) -> RuntimeRow:
-    """Time the full test (and the baseline) on a whole log thinned to keyframes, as Table I."""
+    """Time the full test (and the baseline) on a whole log thinned to keyframes, as Table I.
+
+    Parameters
+    ----------
+    dataset: the dataset's name, copied into the row.
+    log_path: its corrected log.
+    suite: the keyframe thresholds.
+    settings: usable range, test and baseline parameters.
+
+    Returns
+    -------
+    The RuntimeRow: keyframe count, mean overlapping scans per scan, beam count and the
+    seconds of check_consistency and of the baseline's pair scoring.
+    """
     scans = _keyframe_scans(log_path, suite, settings.max_range)
     started = time.perf_counter()
     check_consistency(scans, settings.test)
@@ -241,6 +381,17 @@ def runtime_table(maps: Sequence[SuiteMap], suite: SuiteParameters, settings: Me
     """runtime_row for every dataset of the suite, one after the other on all cores.
 
     A small untimed run first loads the compiled kernels, so that no row pays for that.
+
+    Parameters
+    ----------
+    maps: the suite maps; each dataset among them gives one row (its log read once).
+    suite: the keyframe thresholds.
+    settings: usable range, test and baseline parameters.
+    progress: progress(done, total) after each dataset, or None.
+
+    Returns
+    -------
+    One RuntimeRow per dataset, in order of first appearance in `maps`; empty for no maps.
     """
     logs = {item.dataset: item.log_path for item in maps}
     if not logs:

@@ -77,14 +77,38 @@ class SuiteMap:
 
 
 def keyframes(poses: np.ndarray, distance: float, angle: float) -> np.ndarray:
-    """Indices of the poses kept when each must move `distance` or turn `angle` from the last."""
+    """Indices of the poses kept when each must move `distance` or turn `angle` from the last.
+
+    Parameters
+    ----------
+    poses: (N, 3) poses in travel order.
+    distance: metres from the last kept pose.
+    angle: radians from the last kept pose's heading.
+
+    Returns
+    -------
+    (V,) int64 increasing row indices into `poses`, the first pose always kept.
+    """
     return viewpoint_rows(poses, distance, angle)
 
 
 def displace(poses: np.ndarray, first: int, last: int, rotation: float,
              shift: np.ndarray) -> np.ndarray:
     """Poses with those in [first, last) turned by `rotation` about the position of pose
-    `first` and then moved by `shift`: a rigid displacement of that part of the trajectory."""
+    `first` and then moved by `shift`: a rigid displacement of that part of the trajectory.
+
+    Parameters
+    ----------
+    poses: (N, 3) poses; not changed.
+    first: index of the first displaced pose, the centre of the rotation.
+    last: one past the last displaced pose.
+    rotation: radians, counter-clockwise.
+    shift: (2,) translation in metres, applied after the rotation.
+
+    Returns
+    -------
+    (N, 3) float64 copy with the displaced rows.
+    """
     poses = np.array(poses, dtype=np.float64)
     centre = poses[first, :2]
     cos_r, sin_r = np.cos(rotation), np.sin(rotation)
@@ -125,7 +149,21 @@ def _draw_break(kind: str, count: int, rng: np.random.Generator,
 
 def dataset_maps(name: str, log: CarmenLog, log_path: Path,
                  parameters: SuiteParameters) -> list[SuiteMap]:
-    """The consistent parts of one corrected log and their broken copies."""
+    """The consistent parts of one corrected log and their broken copies.
+
+    Parameters
+    ----------
+    name: the dataset's name (a key of CORRECTED_LOGS); it seeds the dataset's generator
+        together with `parameters.seed`, and prefixes the map names.
+    log: the corrected log.
+    log_path: the log's file, recorded in each map.
+    parameters: keyframe thresholds, part size and break magnitudes.
+
+    Returns
+    -------
+    Per part, in log order, the consistent map '<name>/part<i>/corrected' followed by one
+    broken copy per kind of BREAKS ('<name>/part<i>/<kind>').
+    """
     # one generator per dataset: a map does not change when other datasets are left out
     rng = np.random.default_rng([parameters.seed, sum(name.encode())])
     frames = keyframes(log.laser_poses, parameters.keyframe_distance, parameters.keyframe_angle)
@@ -147,7 +185,19 @@ def dataset_maps(name: str, log: CarmenLog, log_path: Path,
 
 def build_suite(data_folder: str | Path, parameters: SuiteParameters | None = None,
                 datasets: list[str] | None = None) -> list[SuiteMap]:
-    """Every map of the suite, the same for the same seed and data."""
+    """Every map of the suite, the same for the same seed and data.
+
+    Parameters
+    ----------
+    data_folder: the shared data folder holding the CORRECTED_LOGS paths.
+    parameters: how the suite is cut and broken; None for the defaults.
+    datasets: names of CORRECTED_LOGS to use, in this order; None for all.
+
+    Returns
+    -------
+    The maps of every dataset as dataset_maps gives them. Raises ValueError for an unknown
+    dataset name and InputError for a missing or malformed log.
+    """
     parameters = parameters or SuiteParameters()
     data_folder = Path(data_folder)
     names = list(CORRECTED_LOGS) if datasets is None else datasets

@@ -86,7 +86,21 @@ def _corrected(dataset: str, data: Path) -> tuple[Path, np.ndarray, np.ndarray]:
 
 
 def displaced_maps(dataset: str, data: Path, seams: int, seed: int) -> list[WholeLogMap]:
-    """The corrected map and its rigidly displaced copies at `seams` random seams per size."""
+    """The corrected map and its rigidly displaced copies at `seams` random seams per size.
+
+    Parameters
+    ----------
+    dataset: a key of suite.CORRECTED_LOGS (thinned to every EVERY[dataset]-th scan).
+    data: the shared data folder.
+    seams: copies per size of ROTATIONS_DEG and SHIFTS_M; each seam is drawn in the middle
+        half of the log, with a random sign of rotation or direction of shift.
+    seed: seeds the draws together with the dataset's name.
+
+    Returns
+    -------
+    The corrected map, then for each rotation and shift size its `seams` copies. Raises
+    InputError for a missing or malformed log.
+    """
     path, indices, poses = _corrected(dataset, data)
     maps = [WholeLogMap(f'{dataset}/corrected', dataset, 'corrected', 'corrected log', path,
                         indices, poses, poses)]
@@ -109,7 +123,19 @@ def displaced_maps(dataset: str, data: Path, seams: int, seed: int) -> list[Whol
 
 
 def false_loop_maps(dataset: str, data: Path, seed: int) -> list[WholeLogMap]:
-    """Least-squares maps of the built graph of `dataset` with FALSE_LOOPS false loop closures."""
+    """Least-squares maps of the built graph of `dataset` with FALSE_LOOPS false loop closures.
+
+    Parameters
+    ----------
+    dataset: a key of BUILT_GRAPHS.
+    data: the shared data folder with the corrected log, relations and raw bag.
+    seed: the graph with c false loop closures is built with seed + c.
+
+    Returns
+    -------
+    One map per count of FALSE_LOOPS: the optimized laser poses, the corrected ones as the
+    truth. Raises InputError for missing or malformed inputs.
+    """
     from map_consistency_ros.core.backend import optimize
     from map_consistency_ros.io.datasets import (BuildSettings, build_graph, read_raw_bag,
                                                  read_relations)
@@ -133,7 +159,19 @@ def false_loop_maps(dataset: str, data: Path, seed: int) -> list[WholeLogMap]:
 
 def observable_displacement(scans: ScanSet, true_poses: np.ndarray,
                             parameters: ConsistencyParameters) -> float:
-    """The label (module docstring): largest RMS end-point displacement over overlapping pairs."""
+    """The label (module docstring): largest RMS end-point displacement over overlapping pairs.
+
+    Parameters
+    ----------
+    scans: the map's scans at its poses.
+    true_poses: (N, 3) the corrected poses of the same scans.
+    parameters: the test's parameters; the pairs it tests on the corrected map are the
+        overlapping pairs.
+
+    Returns
+    -------
+    The displacement in metres; 0 when no pair overlaps.
+    """
     truth = scans.with_poses(true_poses)
     result = check_consistency(truth, parameters)
     pairs = result.pairs[result.tested]
@@ -168,7 +206,19 @@ def _endpoint_rms(scans: ScanSet, scan_rows: np.ndarray, placed: np.ndarray,
 
 
 def build(data: Path, datasets: list[str], seams: int, seed: int) -> list[WholeLogMap]:
-    """The whole suite: displaced copies of each dataset, false-loop maps where it has a graph."""
+    """The whole suite: displaced copies of each dataset, false-loop maps where it has a graph.
+
+    Parameters
+    ----------
+    data: the shared data folder.
+    datasets: keys of suite.CORRECTED_LOGS, in order.
+    seams: as displaced_maps.
+    seed: as displaced_maps and false_loop_maps.
+
+    Returns
+    -------
+    The displaced maps of every dataset, then the false-loop maps of those in BUILT_GRAPHS.
+    """
     maps = [item for dataset in datasets for item in displaced_maps(dataset, data, seams, seed)]
     return maps + [item for dataset in datasets if dataset in BUILT_GRAPHS
                    for item in false_loop_maps(dataset, data, seed)]
@@ -176,7 +226,17 @@ def build(data: Path, datasets: list[str], seams: int, seed: int) -> list[WholeL
 
 def map_scans(whole: WholeLogMap, parameters: ConsistencyParameters | None = None
               ) -> tuple[ScanSet, np.ndarray]:
-    """The map's viewpoints placed at its poses (as `check` tests a log), and their rows."""
+    """The map's viewpoints placed at its poses (as `check` tests a log), and their rows.
+
+    Parameters
+    ----------
+    whole: the map.
+    parameters: the viewpoint spacing and turn; None for the defaults.
+
+    Returns
+    -------
+    (ScanSet of the V viewpoints, their rows (V,) into the map's scans).
+    """
     parameters = parameters or ConsistencyParameters()
     rows = viewpoint_rows(whole.poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
     log = runner.cached_log(whole.log_path)
@@ -186,14 +246,38 @@ def map_scans(whole: WholeLogMap, parameters: ConsistencyParameters | None = Non
 
 def assess(whole: WholeLogMap, parameters: ConsistencyParameters | None = None,
            settings: ExplanationSettings | None = None) -> tuple[ScanSet, Assessment]:
-    """The map's viewpoints and both stages' verdict on them."""
+    """The map's viewpoints and both stages' verdict on them.
+
+    Parameters
+    ----------
+    whole: the map.
+    parameters: the test's parameters; None for the defaults.
+    settings: the explanation's settings; None for the defaults.
+
+    Returns
+    -------
+    (ScanSet of the viewpoints, the Assessment).
+    """
     scans, _ = map_scans(whole, parameters)
     return scans, explain(scans, check_consistency(scans, parameters), settings)
 
 
 def judge(whole: WholeLogMap, parameters: ConsistencyParameters,
           settings: ExplanationSettings, baseline: BaselineParameters) -> WholeLogResult:
-    """Both stages at the given settings, the baseline's statistic, and the map's label."""
+    """Both stages at the given settings, the baseline's statistic, and the map's label.
+
+    Parameters
+    ----------
+    whole: the map.
+    parameters: the test's parameters.
+    settings: the explanation's settings.
+    baseline: the baseline's parameters (scored on the pairs the test measured).
+
+    Returns
+    -------
+    The WholeLogResult, with the observable displacement of the viewpoints and the seconds of
+    each stage.
+    """
     scans, rows = map_scans(whole, parameters)
     started = time.perf_counter()
     result = check_consistency(scans, parameters)
@@ -215,8 +299,19 @@ def judge_all(maps: list[WholeLogMap], parameters: ConsistencyParameters | None 
               baseline: BaselineParameters | None = None, workers: int | None = None,
               progress: Progress | None = None,
               scheduler: str | None = None) -> list[WholeLogResult]:
-    """`judge` over all maps in a process pool (or on the Dask cluster of `scheduler`);
-    results in the order of `maps`."""
+    """`judge` over all maps in a process pool (or on the Dask cluster of `scheduler`).
+
+    Parameters
+    ----------
+    maps: the maps.
+    parameters, settings, baseline: as judge; None for the defaults.
+    workers, progress, scheduler: how the maps are spread, as runner.pooled.
+
+    Returns
+    -------
+    One WholeLogResult per map, in the order of `maps`. Raises RuntimeError when a worker
+    died.
+    """
     arguments = (parameters or ConsistencyParameters(), settings or ExplanationSettings(),
                  baseline or BaselineParameters())
     return runner.pooled(judge, maps, arguments, workers, progress, scheduler)

@@ -181,7 +181,16 @@ class BagReader:
         return candidates[0]
 
     def topic_type(self, topic: str) -> str:
-        """Message type of a topic of the bag."""
+        """Message type of a topic of the bag.
+
+        Parameters
+        ----------
+        topic: a topic name of the bag (KeyError otherwise).
+
+        Returns
+        -------
+        The type name, e.g. 'sensor_msgs/msg/LaserScan'.
+        """
         return self._topic_types()[topic]
 
     @property
@@ -221,6 +230,16 @@ class BagReader:
         return not self._reader.is2
 
     def message_count(self, topic: str) -> int:
+        """Number of messages on a topic.
+
+        Parameters
+        ----------
+        topic: the topic name.
+
+        Returns
+        -------
+        The count over all files of the bag; 0 for a topic the bag lacks.
+        """
         return sum(connection.msgcount for connection in self._connections.get(topic, []))
 
     @property
@@ -239,10 +258,12 @@ class BagReader:
         return [connection for topic in topics for connection in self._connections.get(topic, [])]
 
     def records(self) -> Iterator[tuple[float, BagRecord]]:
-        """(log time in seconds, record) of the input topics (`input_topics`), in log order.
+        """The input topics' (`input_topics`) messages as core records, in log order.
 
-        Messages whose content is unusable come as BadMessage; a damaged file raises
-        InputError.
+        Yields
+        ------
+        (log time in seconds, record), the record converted as the node does, or BadMessage
+        for a message whose content is unusable. A damaged file raises InputError.
         """
         topics = self.input_topics
         counts: dict[str, int] = {}
@@ -259,9 +280,17 @@ class BagReader:
             yield timestamp * 1e-9, record
 
     def raw_messages(self, topics: Sequence[str]) -> Iterator[tuple[str, str, float, bytes]]:
-        """(topic, message type, log time in seconds, CDR bytes) of ROS 2 bags, in log order.
+        """The serialized messages of some topics of a ROS 2 bag, in log order.
 
-        Raises InputError at once for a ROS 1 bag, whose messages are not CDR.
+        Parameters
+        ----------
+        topics: topic names; those the bag lacks are skipped.
+
+        Returns
+        -------
+        An iterator of (topic, message type, log time in seconds, CDR bytes); it raises
+        InputError for a damaged file. Raises InputError at once for a ROS 1 bag, whose
+        messages are not CDR.
         """
         if self.is_ros1:
             raise InputError(self.source, 'a ROS 1 bag holds ROS 1 serialized messages, not CDR; '
@@ -294,7 +323,18 @@ class BagReader:
             raise InputError(self.source, f'damaged bag ({_describe(error)})') from None
 
     def static_transform(self, parent: str, child: str) -> np.ndarray | None:
-        """The planar pose of `child` in `parent` from /tf_static, None when the bag lacks it."""
+        """The planar pose of `child` in `parent` from /tf_static.
+
+        Parameters
+        ----------
+        parent: the parent frame id (a leading '/' is ignored).
+        child: the child frame id (a leading '/' is ignored).
+
+        Returns
+        -------
+        (3,) x, y, yaw of the first matching transform (its z, roll and pitch dropped); None
+        when the bag has no such static transform. A damaged file raises InputError.
+        """
         connections = [connection for connection in self._reader.connections
                        if connection.topic == '/tf_static' and connection.msgtype == TF_TYPE]
         if not connections:
@@ -386,46 +426,112 @@ class BagWriter:
 
     def write_scan(self, time: float, stamp: float, ranges: np.ndarray, model: SensorModel,
                    frame_id: str = 'laser') -> None:
-        """A LaserScan whose beam k has bearing angle_min + k * angle_increment."""
+        """A LaserScan whose beam k has bearing angle_min + k * angle_increment.
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        stamp: header stamp in seconds.
+        ranges: (K,) ranges in metres (written as float32).
+        model: beam geometry and range limits.
+        frame_id: the laser frame.
+        """
         self._write(SCAN_TYPE, time, scan_message(self._types, stamp, ranges, model, frame_id))
 
     def write_trajectory(self, time: float, stamps: np.ndarray, poses: np.ndarray,
                          frame_id: str = 'map') -> None:
-        """A Path of poses (M, 3), each PoseStamped stamped with its scan's stamp."""
+        """A Path of keyframe poses, each PoseStamped stamped with its scan's stamp.
+
+        Parameters
+        ----------
+        time: log time in seconds, also the Path's header stamp.
+        stamps: (M,) seconds, the stamp of each keyframe's scan.
+        poses: (M, 3) x, y, yaw.
+        frame_id: frame of the header and of every entry.
+        """
         self._write(PATH_TYPE, time, path_message(self._types, stamps, poses, frame_id,
                                                   stamp=time))
 
     def write_single_pose(self, time: float, msgtype: str, stamp: float, pose: np.ndarray,
                           frame_id: str = 'odom', child_frame_id: str = 'base_link') -> None:
         """One Odometry, PoseStamped or PoseWithCovarianceStamped on the pose topic (a bag
-        holds one pose type: single poses or Paths)."""
+        holds one pose type: single poses or Paths).
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        msgtype: one of messages.SINGLE_POSE_TYPES (ValueError otherwise).
+        stamp: header stamp in seconds.
+        pose: (3,) x, y, yaw.
+        frame_id: the frame the pose is in.
+        child_frame_id: the moving frame (Odometry only).
+        """
         self._write(msgtype, time, single_pose_message(self._types, msgtype, stamp, pose,
                                                        frame_id, child_frame_id))
 
     def write_constraints(self, time: float, rows: np.ndarray) -> None:
-        """All pose-graph edges as a Float64MultiArray of rows laid out as CONSTRAINT_FIELDS."""
+        """All pose-graph edges as a Float64MultiArray of rows laid out as CONSTRAINT_FIELDS.
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        rows: (E, 11) edge rows.
+        """
         self._write(CONSTRAINTS_TYPE, time, constraints_message(self._types, rows))
 
     def write_graph(self, time: float, ids: np.ndarray, positions: np.ndarray,
                     frame_id: str = 'map') -> None:
-        """slam_toolbox's graph markers: DELETEALL, a SPHERE per vertex id (V,) at positions
-        (V, 2), the edges, on the graph topic."""
+        """slam_toolbox's graph markers: DELETEALL, a SPHERE per vertex, the edges, on the
+        graph topic.
+
+        Parameters
+        ----------
+        time: log time in seconds, also the markers' header stamp.
+        ids: (V,) vertex ids.
+        positions: (V, 2) x, y of the vertices.
+        frame_id: the markers' frame.
+        """
         self._write(MARKER_ARRAY_TYPE, time, graph_markers_message(self._types, time, ids,
                                                                    positions, frame_id))
 
     def write_new_node_event(self, time: float, node_id: int, stamp: float, pose: np.ndarray,
                              step: np.ndarray | None = None) -> None:
-        """slam_toolbox's NewNodeEvent of node `node_id` built from the scan stamped `stamp`."""
+        """slam_toolbox's NewNodeEvent of node `node_id` built from the scan stamped `stamp`.
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        node_id: the new node's id.
+        stamp: stamp of the node's scan, seconds.
+        pose: (3,) x, y, yaw of the node.
+        step: (3,) relative pose from node `node_id - 1`; None for zeros.
+        """
         self._write(NEW_NODE_EVENT_TYPE, time, new_node_event_message(self._types, node_id,
                                                                       stamp, pose, step))
 
     def write_pose_graph(self, time: float, stamp: float, ids: np.ndarray, poses: np.ndarray,
                          frame_id: str = 'map', edges: np.ndarray | None = None) -> None:
-        """slam_toolbox's PoseGraph: node ids (V,) at poses (V, 3), header stamp `stamp`."""
+        """slam_toolbox's PoseGraph.
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        stamp: header stamp in seconds.
+        ids: (V,) node ids.
+        poses: (V, 3) x, y, yaw of the nodes.
+        frame_id: the header's frame.
+        edges: (E, 2) node id pairs, given the relative pose of their nodes; None for none.
+        """
         self._write(POSE_GRAPH_TYPE, time, pose_graph_message(self._types, stamp, ids, poses,
                                                               frame_id, edges))
 
     def write_loop_closure_event(self, time: float, stamp: float) -> None:
-        """slam_toolbox's LoopClosureEvent."""
+        """slam_toolbox's LoopClosureEvent.
+
+        Parameters
+        ----------
+        time: log time in seconds.
+        stamp: the event's stamp in seconds.
+        """
         self._write(LOOP_CLOSURE_EVENT_TYPE, time, loop_closure_event_message(self._types,
                                                                               stamp))

@@ -64,7 +64,17 @@ class CarmenLog:
 
 
 def open_text(path: Path):
-    """A text stream of a plain or gzip-compressed file (told apart by its magic bytes)."""
+    """A text stream of a plain or gzip-compressed file (told apart by its magic bytes).
+
+    Parameters
+    ----------
+    path: the file to open.
+
+    Returns
+    -------
+    An open UTF-8 text stream (undecodable bytes replaced), for the caller to close; OSError
+    when the file cannot be opened.
+    """
     with open(path, 'rb') as probe:
         gzipped = probe.read(2) == b'\x1f\x8b'
     if gzipped:
@@ -73,7 +83,20 @@ def open_text(path: Path):
 
 
 def parse_floats(tokens: list[str], source: str, line: int, what: str) -> np.ndarray:
-    """The tokens as float64; InputError names the first non-numeric one and the line."""
+    """The tokens as float64.
+
+    Parameters
+    ----------
+    tokens: the fields to convert.
+    source: the file name, for the error message.
+    line: the 1-based line of the record, for the error message.
+    what: what a field is ('range', 'pose value', ...), for the error message.
+
+    Returns
+    -------
+    (len(tokens),) float64 values. Raises InputError naming the first non-numeric token, the
+    file and the line.
+    """
     try:
         values = np.array(tokens, dtype=np.float64)
     except ValueError:
@@ -107,7 +130,20 @@ def _need(tokens: list[str], length: int, source: str, line: int, record: str) -
 
 
 def parse_flaser(tokens: list[str], source: str, line: int):
-    """(ranges, laser pose, robot pose, logger timestamp, None) of a FLASER record."""
+    """The fields of a FLASER record.
+
+    Parameters
+    ----------
+    tokens: the record's whitespace-separated fields, the tag 'FLASER' first.
+    source: the file name, for error messages.
+    line: the record's 1-based line, for error messages.
+
+    Returns
+    -------
+    (ranges (K,), laser pose (3,), robot pose (3,), logger timestamp, None); the last is the
+    LaserAngles slot, which FLASER records leave empty. Raises InputError for a truncated
+    record, a bad beam count or a non-numeric field.
+    """
     _need(tokens, 2, source, line, 'FLASER')
     beams = _count(tokens[1], source, line, 'FLASER beam count')
     _need(tokens, 2 + beams + _FLASER_TAIL, source, line, 'FLASER')
@@ -119,7 +155,20 @@ def parse_flaser(tokens: list[str], source: str, line: int):
 
 
 def parse_robotlaser(tokens: list[str], source: str, line: int):
-    """(ranges, laser pose, robot pose, logger timestamp, LaserAngles) of a ROBOTLASER1 record."""
+    """The fields of a ROBOTLASER1 record.
+
+    Parameters
+    ----------
+    tokens: the record's whitespace-separated fields, the tag 'ROBOTLASER1' first.
+    source: the file name, for error messages.
+    line: the record's 1-based line, for error messages.
+
+    Returns
+    -------
+    (ranges (K,), laser pose (3,), robot pose (3,), logger timestamp, LaserAngles); the
+    remissions are skipped. Raises InputError for a truncated record, a bad beam or remission
+    count or a non-numeric field.
+    """
     _need(tokens, _ROBOTLASER_HEAD + 1, source, line, 'ROBOTLASER1')
     head = parse_floats(tokens[2:7], source, line, 'laser parameter')
     beams = _count(tokens[8], source, line, 'ROBOTLASER1 beam count')
@@ -140,8 +189,17 @@ _PARSERS = {'FLASER': parse_flaser, 'ROBOTLASER1': parse_robotlaser}
 def read_carmen_log(path: str | Path) -> CarmenLog:
     """Read every FLASER / ROBOTLASER1 record of a CARMEN log.
 
-    Raises InputError naming the file and line for a missing file, a truncated or non-numeric
-    record, records with differing beam counts, or a log without laser records.
+    Parameters
+    ----------
+    path: the log, plain or gzip-compressed. Other record types are skipped; PARAM lines are
+        kept as `parameters`.
+
+    Returns
+    -------
+    A CarmenLog of the N laser records in file order; `stated_angles` comes from the first
+    ROBOTLASER1 record (None for a FLASER-only log). Raises InputError naming the file and line
+    for a missing or unreadable file, a truncated or non-numeric record, records with differing
+    beam counts, a non-finite laser pose, or a log without laser records.
     """
     path = Path(path)
     source = str(path)
@@ -186,7 +244,17 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
 
 
 def stated_max_range(log: CarmenLog) -> float | None:
-    """The sensor's maximum range as the log states it (ROBOTLASER1 or PARAM), if it does."""
+    """The sensor's maximum range as the log states it (ROBOTLASER1 or PARAM), if it does.
+
+    Parameters
+    ----------
+    log: the log read by `read_carmen_log`.
+
+    Returns
+    -------
+    The range in metres from the first ROBOTLASER1 record, else from PARAM
+    robot_front_laser_max; None when neither states a number.
+    """
     if log.stated_angles is not None:
         return float(log.stated_angles.max_range)
     value = log.parameters.get('robot_front_laser_max')
@@ -204,6 +272,21 @@ def sensor_model(log: CarmenLog, fov: float | None = None, max_range: float | No
     That convention minimises the measure on the Intel, Freiburg 079 and Belgioioso logs.
     `max_range` is the usable range of the test (default 8 m, as the original implementation),
     capped by the sensor maximum the log states.
+
+    Parameters
+    ----------
+    log: the log whose beam count K and stated geometry are used.
+    fov: field of view in radians of FLASER-style scans; None for the ROBOTLASER1 statement
+        or, without one, 180 degrees. Given, it overrides a ROBOTLASER1 statement and the
+        resolution PARAM.
+    max_range: usable range in metres; None for 8 m.
+    range_min: readings at or below it (metres) are invalid.
+
+    Returns
+    -------
+    The SensorModel. Raises ValueError for a field of view outside (0, 2 pi] or fewer than 2
+    beams (when the increment is derived from FOV and K), and as SensorModel does for an
+    invalid geometry.
     """
     beams = log.beam_count
     stated = log.stated_angles

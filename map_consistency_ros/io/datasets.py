@@ -78,7 +78,17 @@ class RawBag:
     laser_offset: np.ndarray  # (3,) laser pose in the base frame
 
     def odometry_at(self, stamps: np.ndarray) -> np.ndarray:
-        """(M, 3) odometry poses interpolated linearly at `stamps`."""
+        """Odometry poses interpolated linearly at some stamps.
+
+        Parameters
+        ----------
+        stamps: (M,) times in seconds on the bag's clock; those outside the odometry's span get
+            its first or last pose.
+
+        Returns
+        -------
+        (M, 3) x, y, yaw with the heading wrapped to (-pi, pi].
+        """
         stamps = np.asarray(stamps, dtype=np.float64)
         poses = np.stack([np.interp(stamps, self.odom_stamps, self.odom_poses[:, axis])
                           for axis in range(3)], axis=1)
@@ -88,14 +98,45 @@ class RawBag:
 
 def build_dataset(log_path: str | Path, relations_path: str | Path, bag_path: str | Path,
                   settings: BuildSettings = BuildSettings()) -> G2oGraph:
-    """Build the pose graph with laser data (see the module docstring); InputError on bad files."""
+    """Build the pose graph with laser data (see the module docstring).
+
+    Parameters
+    ----------
+    log_path: the corrected CARMEN log (plain or gzip).
+    relations_path: the `.relations` file of the same data set.
+    bag_path: the raw ROS 1 or ROS 2 bag the relations' stamps refer to.
+    settings: how the graph is built.
+
+    Returns
+    -------
+    The graph as `build_graph` gives it. Raises InputError for a missing or malformed file
+    and for a log scan no raw scan matches.
+    """
     return build_graph(read_carmen_log(log_path), read_relations(relations_path),
                        read_raw_bag(bag_path), settings)
 
 
 def build_graph(log: CarmenLog, relations: np.ndarray, bag: RawBag,
                 settings: BuildSettings = BuildSettings()) -> G2oGraph:
-    """`build_dataset` on inputs already read (relations as `read_relations` gives them)."""
+    """`build_dataset` on inputs already read.
+
+    Parameters
+    ----------
+    log: the corrected log (`read_carmen_log`).
+    relations: (R, 5) rows `t1 t2 x y yaw` as `read_relations` gives them.
+    bag: the raw bag's content (`read_raw_bag`).
+    settings: how the graph is built; its seed fixes the false loop closures and the noisy
+        initial guess.
+
+    Returns
+    -------
+    A G2oGraph of N = ceil(scan_count / stride) vertices with ids 0..N-1, the first fixed:
+    odometry edges first, then relation edges, then false loop closures. Its laser holds the
+    kept scans with their corrected robot poses, the laser poses through the bag's laser
+    offset, the raw scan stamps as timestamps and the log's beam geometry. Raises InputError
+    when the log's scans do not match the bag's (see match_scans), ValueError for false loop
+    closures with fewer than 4 vertices.
+    """
     matched = match_scans(log, bag)
     keep = np.arange(0, log.scan_count, settings.stride)
     stamps = bag.scan_stamps[matched[keep]]
@@ -135,7 +176,18 @@ def build_graph(log: CarmenLog, relations: np.ndarray, bag: RawBag,
 
 
 def read_relations(path: str | Path) -> np.ndarray:
-    """(R, 5) rows `t1 t2 x y yaw` of a relations file; InputError names a malformed line."""
+    """Read a relations file (lines `t1 t2 x y z roll pitch yaw`, '#' comments skipped).
+
+    Parameters
+    ----------
+    path: the `.relations` file.
+
+    Returns
+    -------
+    (R, 5) rows `t1 t2 x y yaw` (stamps in seconds, the planar part of each relation). Raises
+    InputError for a missing file, a line without 8 fields or with a non-numeric or
+    non-finite one (naming the line), or a file without relations.
+    """
     path = Path(path)
     source = str(path)
     if not path.is_file():
@@ -162,7 +214,20 @@ def read_relations(path: str | Path) -> np.ndarray:
 
 
 def read_raw_bag(path: str | Path) -> RawBag:
-    """Scans, odometry and the base-to-laser transform of a raw (ROS 1 or 2) bag."""
+    """Scans, odometry and the base-to-laser transform of a raw (ROS 1 or 2) bag.
+
+    Parameters
+    ----------
+    path: the bag, with LaserScans on /scan, Odometry on /odom and optionally the transform
+        to frame 'laser' on /tf_static.
+
+    Returns
+    -------
+    A RawBag: the scans in bag order, the beam geometry of the first scan, the odometry sorted
+    by stamp with its heading unwrapped, the laser offset (zeros without the transform).
+    Raises InputError for a missing or unreadable bag, one without /scan messages or with
+    fewer than 2 /odom messages, or scans that differ in beam count.
+    """
     path = Path(path)
     source = str(path)
     if not path.exists():
@@ -203,11 +268,21 @@ def read_raw_bag(path: str | Path) -> RawBag:
 
 
 def match_scans(log: CarmenLog, bag: RawBag) -> np.ndarray:
-    """(N,) index of the raw scan with the same ranges as each log scan.
+    """The raw scan with the same ranges as each log scan (compared as float32).
 
     Identical range arrays recur (the robot standing still, a sparse corridor), so among
     identical raw scans the one nearest in time wins, the log's clock being moved onto the
     bag's by the median offset of the scans that match exactly one raw scan.
+
+    Parameters
+    ----------
+    log: the corrected log, N scans.
+    bag: the raw bag's content.
+
+    Returns
+    -------
+    (N,) int64 index into the bag's scans. Raises InputError when the beam counts differ or
+    a log scan matches no raw scan (naming its line).
     """
     if log.beam_count != bag.scan_ranges.shape[1]:
         raise InputError(log.path, f'{log.beam_count} beams per scan, but the bag\'s scans have '

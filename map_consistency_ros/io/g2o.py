@@ -54,7 +54,13 @@ class G2oGraph:
         return offsets[0]
 
     def scan_ranges(self) -> np.ndarray:
-        """(N, K) ranges of every vertex in index order; InputError unless each has one scan."""
+        """The scans' ranges re-ordered to follow the vertices.
+
+        Returns
+        -------
+        (N, K) ranges in metres, row i the scan of vertex index i. Raises InputError when the
+        graph carries no laser records or some vertex has no scan or more than one.
+        """
         if self.laser is None:
             raise InputError('graph', 'the graph carries no laser data (ROBOTLASER1 lines)')
         count = self.graph.vertex_count
@@ -69,7 +75,21 @@ class G2oGraph:
 
 
 def read_g2o(path: str | Path) -> G2oGraph:
-    """Read a g2o SE(2) file; InputError names the file and line of any malformed record."""
+    """Read a g2o SE(2) file (the record layout is in the module docstring).
+
+    Parameters
+    ----------
+    path: the file, plain or gzip-compressed.
+
+    Returns
+    -------
+    A G2oGraph: vertices re-indexed 0..N-1 in increasing id order, `vertex_ids (N,)` the file's
+    ids, and the ROBOTLASER1 scans (None when there are none). Raises InputError naming the file
+    and line for a missing or unreadable file, a malformed, non-numeric or non-finite record, an
+    unsupported record type, a duplicate or unknown vertex id, an edge from a vertex to itself,
+    an information matrix that is not positive definite, a ROBOTLASER1 line before any vertex,
+    scans with differing beam counts, or a file without vertices.
+    """
     path = Path(path)
     source = str(path)
     if not path.is_file():
@@ -91,6 +111,12 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
 
     Each scan's ROBOTLASER1 line follows its vertex, with the robot pose at the vertex's
     current pose and the laser pose composed with the laser offset.
+
+    Parameters
+    ----------
+    path: the file to write (plain text; replaced if it exists).
+    content: the graph, its vertex ids (written in place of the indices) and optional scans;
+        the scans must share one laser offset (`G2oGraph.laser_offset`, else InputError).
     """
     graph, ids = content.graph, content.vertex_ids
     scan_of = np.full(graph.vertex_count, -1)

@@ -57,17 +57,37 @@ MessageTypes = Callable[[str], type]
 # -- messages -> numpy --------------------------------------------------------------------------
 
 def stamp_to_seconds(stamp) -> float:
-    """A builtin_interfaces/Time (or ROS 1 time) as float seconds."""
+    """A builtin_interfaces/Time (or ROS 1 time) as float seconds.
+
+    Parameters
+    ----------
+    stamp: any object with integer fields `sec` and `nanosec`.
+
+    Returns
+    -------
+    sec + nanosec * 1e-9.
+    """
     return stamp.sec + stamp.nanosec * 1e-9
 
 
 def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, SensorModel]:
-    """(stamp, ranges (K,), SensorModel) of a LaserScan.
+    """The stamp, ranges and beam geometry of a LaserScan.
 
     The usable range is the smaller of the scan's `range_max` and `max_range` (beams beyond it
-    count as free space). NaN / inf ranges are kept. Raises ValueError for an empty scan,
-    non-finite or non-positive angle fields, or angle fields that disagree with the number of
-    ranges by more than one beam (drivers differ on whether angle_max is inclusive).
+    count as free space). NaN / inf ranges are kept.
+
+    Parameters
+    ----------
+    msg: a sensor_msgs/LaserScan (rclpy's or rosbags').
+    max_range: the usable range of the test in metres; inf leaves the scan's `range_max`.
+
+    Returns
+    -------
+    (header stamp in seconds, ranges (K,) float64 metres, SensorModel); the model's range_min
+    is the scan's when finite and positive, else 0. Raises ValueError for fewer than 2 ranges,
+    non-finite angle fields or a non-positive angle_increment, angle fields that disagree with
+    the number of ranges by more than one beam (drivers differ on whether angle_max is
+    inclusive), or a geometry SensorModel rejects.
     """
     ranges = np.asarray(msg.ranges, dtype=np.float64)
     beams = ranges.size
@@ -92,7 +112,16 @@ def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, 
 
 
 def pose_to_numpy(pose) -> np.ndarray:
-    """(x, y, yaw) of a geometry_msgs/Pose; yaw NaN for an unusable quaternion."""
+    """The planar pose of a geometry_msgs/Pose (z and roll / pitch are dropped).
+
+    Parameters
+    ----------
+    pose: a geometry_msgs/Pose.
+
+    Returns
+    -------
+    (3,) x, y, yaw (radians); yaw NaN for an unusable quaternion.
+    """
     orientation = pose.orientation
     return np.array([pose.position.x, pose.position.y,
                      se2.yaw_from_quaternion(orientation.x, orientation.y, orientation.z,
@@ -100,10 +129,18 @@ def pose_to_numpy(pose) -> np.ndarray:
 
 
 def path_to_numpy(msg) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps (M,), poses (M, 3) x, y, yaw) of a Path's PoseStamped entries.
+    """The stamps and planar poses of a Path's PoseStamped entries.
 
     Non-finite values, and a NaN yaw for an unusable quaternion (zero, or with a non-finite
     component), are passed on: the monitor skips those poses and says so.
+
+    Parameters
+    ----------
+    msg: a nav_msgs/Path.
+
+    Returns
+    -------
+    (stamps (M,) seconds of the entries' headers, poses (M, 3) x, y, yaw).
     """
     count = len(msg.poses)
     stamps = np.empty(count)
@@ -139,12 +176,20 @@ def _pose_entries(values_offset: int) -> np.dtype:
 def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
     """The record of a serialized nav_msgs/Path, read straight from its CDR bytes.
 
-    Deserializing a Path into message objects costs about 50 us per pose (45 ms for 910
-    poses), all of it holding the interpreter lock, and a SLAM back-end sends the whole
-    estimate every time; reading the bytes with numpy takes microseconds. Returns None for a
+    Deserializing a Path builds a message object per pose, all of it holding the interpreter
+    lock, and a SLAM back-end sends the whole estimate every time; numpy reads the bytes in one
+    pass. The values are those of path_to_numpy.
+
+    Parameters
+    ----------
+    data: the serialized message, 4-byte encapsulation header first (as rclpy's raw
+        subscriptions and rosbag2 give it).
+
+    Returns
+    -------
+    A KeyframeEstimate (entry stamps, poses (M, 3), frame id and header stamp), or None for a
     layout this does not read (big endian, XCDR2, entries whose frame ids differ in length,
-    a message shorter than its lengths say): the caller deserializes those. The values are
-    those of path_to_numpy.
+    a message shorter than its lengths say): the caller deserializes those.
     """
     if len(data) < _ENCAPSULATION + 16 or bytes(data[:2]) != _CDR_LE:
         return None
@@ -185,11 +230,18 @@ def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
 
 
 def constraints_to_numpy(msg) -> np.ndarray:
-    """Edge rows (E, 11) of a Float64MultiArray, in the order of CONSTRAINT_FIELDS.
+    """The pose-graph edge rows of a Float64MultiArray.
 
-    With a layout, it must be two dimensions (edges, 11) whose sizes match the data after
-    data_offset; without one, the data length must be a multiple of 11. Raises ValueError
-    otherwise.
+    Parameters
+    ----------
+    msg: a std_msgs/Float64MultiArray. With a layout, it must be two dimensions (edges, 11)
+        whose sizes match the data after data_offset; without one, the data length after
+        data_offset must be a multiple of 11.
+
+    Returns
+    -------
+    (E, 11) float64 rows in the order of CONSTRAINT_FIELDS. Raises ValueError when the layout
+    or the data length does not fit.
     """
     data = np.asarray(msg.data, dtype=np.float64)
     width = CONSTRAINT_WIDTH
@@ -211,9 +263,20 @@ def constraints_to_numpy(msg) -> np.ndarray:
 
 
 def graph_markers_to_numpy(msg) -> tuple[np.ndarray, np.ndarray, str]:
-    """(vertex ids (V,), positions (V, 2), frame) of a slam_toolbox graph_visualization array.
+    """The vertices of a slam_toolbox graph_visualization array.
 
-    See _graph_vertices.
+    See _graph_vertices for which markers are vertices.
+
+    Parameters
+    ----------
+    msg: a visualization_msgs/MarkerArray.
+
+    Returns
+    -------
+    (vertex ids (V,) int64, positions (V, 2) x, y, the first non-empty frame id of a vertex
+    marker or '').
+    Raises ValueError as _graph_vertices does (no DELETEALL, a non-SPHERE marker in the vertex
+    namespace, a repeated id, a non-finite position).
     """
     return _graph_vertices(
         (marker.ns, marker.id, marker.type, marker.action, marker.pose.position.x,
@@ -269,9 +332,18 @@ def _graph_vertices(markers) -> tuple[np.ndarray, np.ndarray, str]:
 
 
 def pose_graph_to_numpy(msg) -> tuple[np.ndarray, np.ndarray]:
-    """(node ids (V,), poses (V, 3) x, y, yaw) of a slam_toolbox PoseGraph; its edges are not
-    read (the monitor takes constraints in its own row format). Raises ValueError for repeated
-    ids and non-finite values (see _graph_nodes)."""
+    """The nodes of a slam_toolbox PoseGraph; its edges are not read (the monitor takes
+    constraints in its own row format).
+
+    Parameters
+    ----------
+    msg: a slam_toolbox/msg/PoseGraph.
+
+    Returns
+    -------
+    (node ids (V,) int64, poses (V, 3) x, y, yaw) in message order. Raises ValueError for
+    repeated or negative ids and non-finite values (see _graph_nodes).
+    """
     count = len(msg.nodes)
     ids = np.empty(count, dtype=np.int64)
     values = np.empty((count, 7))
@@ -306,8 +378,17 @@ def _graph_nodes(ids: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def new_node_event_to_record(msg) -> NodeEvent:
-    """The record of a slam_toolbox NewNodeEvent; ValueError for a negative id or a
-    non-finite pose."""
+    """The record of a slam_toolbox NewNodeEvent (its edge is not read).
+
+    Parameters
+    ----------
+    msg: a slam_toolbox/msg/NewNodeEvent.
+
+    Returns
+    -------
+    A NodeEvent: node id, stamp of its scan in seconds, pose (3,) x, y, yaw. Raises ValueError
+    for a negative id or a non-finite pose.
+    """
     pose = pose_to_numpy(msg.pose)
     if msg.new_node_id < 0 or not np.all(np.isfinite(pose)):
         raise ValueError(f'new node event {msg.new_node_id}: negative id or non-finite pose '
@@ -362,9 +443,18 @@ class _CdrReader:
 def graph_markers_from_cdr(data: bytes) -> GraphSnapshot | None:
     """The record of a serialized slam_toolbox graph_visualization MarkerArray, read from its
     CDR bytes (visualization_msgs/Marker of ROS 2 Jazzy) without building a message object per
-    marker: that costs ~0.15 ms per marker, 0.3 s for a 2,000-vertex graph, all of it holding
-    the interpreter. None for a layout this does not read (big endian, XCDR2); ValueError as
-    graph_markers_to_numpy, and for a message shorter than its fields."""
+    marker, which for a graph of thousands of vertices holds the interpreter for long.
+
+    Parameters
+    ----------
+    data: the serialized message, 4-byte encapsulation header first.
+
+    Returns
+    -------
+    A GraphSnapshot with the values of graph_markers_to_numpy, or None for a layout this does
+    not read (big endian, XCDR2). Raises ValueError as graph_markers_to_numpy, and for a
+    message shorter than its fields.
+    """
     if len(data) < _ENCAPSULATION + 4 or bytes(data[:2]) != _CDR_LE:
         return None
     reader = _CdrReader(memoryview(data)[_ENCAPSULATION:])
@@ -403,10 +493,19 @@ def _marker_fields(reader: _CdrReader) -> tuple:
 
 def pose_graph_from_cdr(data: bytes) -> PoseGraphNodes | None:
     """The record of a serialized slam_toolbox PoseGraph, its nodes read from the CDR bytes
-    with numpy (the edges after them are not read): a message object per node and edge costs
-    tens of microseconds each, all holding the interpreter, for a graph of thousands. None for
-    a layout this does not read (big endian, XCDR2); ValueError as pose_graph_to_numpy, and for
-    a message shorter than its node count says."""
+    with numpy (the edges after them are not read): a message object per node and edge, all
+    holding the interpreter, is slow for a graph of thousands.
+
+    Parameters
+    ----------
+    data: the serialized message, 4-byte encapsulation header first.
+
+    Returns
+    -------
+    A PoseGraphNodes with the values of pose_graph_to_numpy, the header stamp and frame id,
+    or None for a layout this does not read (big endian, XCDR2). Raises ValueError as
+    pose_graph_to_numpy, and for a message shorter than its node count says.
+    """
     if len(data) < _ENCAPSULATION + 16 or bytes(data[:2]) != _CDR_LE:
         return None
     body = memoryview(data)[_ENCAPSULATION:]
@@ -447,16 +546,39 @@ CDR_RECORDS: dict[str, Callable[[bytes], Record | None]] = {
 def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str], object],
                     max_range: float = math.inf) -> Record:
     """The record of serialized message `data` of a type in CDR_RECORDS: read from its bytes,
-    or, for a layout the reader leaves, `deserialize(data, msgtype)` and to_record. ValueError
-    for unusable content, as to_record."""
+    or, for a layout the reader leaves, `deserialize(data, msgtype)` and to_record.
+
+    Parameters
+    ----------
+    msgtype: the message type, a key of CDR_RECORDS (KeyError otherwise).
+    data: the serialized message, 4-byte encapsulation header first.
+    deserialize: deserialize(data, msgtype) -> message object, for the layouts left over.
+    max_range: passed to to_record (only scans use it).
+
+    Returns
+    -------
+    The core record. Raises ValueError for unusable content, as to_record.
+    """
     record = CDR_RECORDS[msgtype](data)
     return to_record(msgtype, deserialize(data, msgtype), max_range) if record is None else record
 
 
 def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
-    """The core record of one message of type `msgtype` (one of SCAN_TYPE, POSE_TYPES,
-    CONSTRAINTS_TYPE, MARKER_ARRAY_TYPE, SLAM_TOOLBOX_GRAPH_TYPES); ValueError for unusable
-    content."""
+    """The core record of one message.
+
+    Parameters
+    ----------
+    msgtype: the message type, one of SCAN_TYPE, POSE_TYPES, CONSTRAINTS_TYPE,
+        MARKER_ARRAY_TYPE, SLAM_TOOLBOX_GRAPH_TYPES.
+    msg: the message object (rclpy's or rosbags'), read by attribute.
+    max_range: usable range of scans in metres, as scan_to_numpy.
+
+    Returns
+    -------
+    A Scan, KeyframeEstimate (Path), Constraints, GraphSnapshot (markers), NodeEvent,
+    PoseGraphNodes, LoopClosure or PoseSample (single poses). Raises ValueError for unusable
+    content and for a type outside the list.
+    """
     if msgtype == SCAN_TYPE:
         stamp, ranges, model = scan_to_numpy(msg, max_range)
         return Scan(stamp=stamp, ranges=ranges, model=model, frame_id=msg.header.frame_id)
@@ -488,19 +610,55 @@ def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
 # -- numpy -> messages --------------------------------------------------------------------------
 
 def time_message(types: MessageTypes, seconds: float):
-    """Float seconds as a builtin_interfaces/Time (nanoseconds rounded)."""
+    """Float seconds as a builtin_interfaces/Time (nanoseconds rounded).
+
+    Parameters
+    ----------
+    types: type name -> message class (see the module docstring).
+    seconds: the time in seconds.
+
+    Returns
+    -------
+    The Time message; nanosec in [0, 1e9), sec floored (negative for times before 0).
+    """
     total = round(seconds * 1e9)
     return types('builtin_interfaces/msg/Time')(sec=int(total // 1_000_000_000),
                                                 nanosec=int(total % 1_000_000_000))
 
 
 def header_message(types: MessageTypes, stamp: float, frame_id: str):
+    """A std_msgs/Header.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamp: header stamp in seconds.
+    frame_id: the header's frame.
+
+    Returns
+    -------
+    The Header message.
+    """
     return types('std_msgs/msg/Header')(stamp=time_message(types, stamp), frame_id=frame_id)
 
 
 def scan_message(types: MessageTypes, stamp: float, ranges: np.ndarray, model: SensorModel,
                  frame_id: str = 'laser'):
-    """A LaserScan of ranges (K,) whose beam k has bearing angle_min + k * angle_increment."""
+    """A LaserScan whose beam k has bearing angle_min + k * angle_increment.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamp: header stamp in seconds.
+    ranges: (K,) ranges in metres, written as float32.
+    model: beam geometry; its range_min and max_range become the scan's range limits.
+    frame_id: the laser frame.
+
+    Returns
+    -------
+    The LaserScan; angle_max is the bearing of the last beam, timing fields are zero and
+    intensities empty.
+    """
     ranges = np.asarray(ranges, dtype=np.float32)
     return types(SCAN_TYPE)(
         header=header_message(types, stamp, frame_id), angle_min=float(model.angle_min),
@@ -511,7 +669,17 @@ def scan_message(types: MessageTypes, stamp: float, ranges: np.ndarray, model: S
 
 
 def geometry_pose(types: MessageTypes, pose: np.ndarray):
-    """A geometry_msgs/Pose of (x, y, yaw)."""
+    """A geometry_msgs/Pose of a planar pose.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    pose: (3,) x, y, yaw (radians).
+
+    Returns
+    -------
+    The Pose, with z = 0 and a rotation about z only.
+    """
     x, y, yaw = (float(v) for v in pose)
     z, w = se2.quaternion_from_yaw(yaw)
     return types('geometry_msgs/msg/Pose')(
@@ -521,8 +689,20 @@ def geometry_pose(types: MessageTypes, pose: np.ndarray):
 
 def path_message(types: MessageTypes, stamps: np.ndarray, poses: np.ndarray, frame_id: str,
                  stamp: float | None = None):
-    """A Path of poses (M, 3), each PoseStamped stamped with its scan's stamp; the header
-    stamp is `stamp`, by default the last pose's."""
+    """A Path whose PoseStamped entries are stamped with their scans' stamps.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamps: (M,) seconds, the stamp of the scan of each keyframe.
+    poses: (M, 3) x, y, yaw.
+    frame_id: frame of the header and of every entry.
+    stamp: header stamp in seconds; None for the last entry's (0 for an empty Path).
+
+    Returns
+    -------
+    The Path message.
+    """
     if stamp is None:
         stamp = float(stamps[-1]) if len(stamps) else 0.0
     pose_stamped = types(POSE_STAMPED_TYPE)
@@ -535,7 +715,21 @@ def path_message(types: MessageTypes, stamps: np.ndarray, poses: np.ndarray, fra
 def single_pose_message(types: MessageTypes, msgtype: str, stamp: float, pose: np.ndarray,
                         frame_id: str = 'odom', child_frame_id: str = 'base_link'):
     """An Odometry, PoseStamped or PoseWithCovarianceStamped of one pose (zero covariance,
-    zero twist)."""
+    zero twist).
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    msgtype: one of SINGLE_POSE_TYPES.
+    stamp: header stamp in seconds.
+    pose: (3,) x, y, yaw.
+    frame_id: the header's frame (the frame the pose is in).
+    child_frame_id: the moving frame; only Odometry carries it.
+
+    Returns
+    -------
+    The message. Raises ValueError for a `msgtype` outside SINGLE_POSE_TYPES.
+    """
     header = header_message(types, stamp, frame_id)
     geometry = geometry_pose(types, pose)
     if msgtype == POSE_STAMPED_TYPE:
@@ -556,7 +750,17 @@ def single_pose_message(types: MessageTypes, msgtype: str, stamp: float, pose: n
 
 
 def constraints_message(types: MessageTypes, rows: np.ndarray):
-    """Edge rows (E, 11) as a Float64MultiArray with the layout labelled ('edges', 'fields')."""
+    """Edge rows as a Float64MultiArray with the layout labelled ('edges', 'fields').
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    rows: (E, 11) rows laid out as CONSTRAINT_FIELDS (any array of E * 11 values is reshaped).
+
+    Returns
+    -------
+    The Float64MultiArray, data_offset 0, data row-major.
+    """
     rows = np.asarray(rows, dtype=np.float64).reshape(-1, len(CONSTRAINT_FIELDS))
     dimension = types('std_msgs/msg/MultiArrayDimension')
     layout = types('std_msgs/msg/MultiArrayLayout')(
@@ -592,7 +796,20 @@ def graph_markers_message(types: MessageTypes, stamp: float, ids: np.ndarray,
                           positions: np.ndarray, frame_id: str = 'map'):
     """A MarkerArray as slam_toolbox's publishGraph builds it: DELETEALL, one SPHERE per vertex
     (namespace `slam_toolbox`, id = vertex id, identity orientation), then the edges as a
-    LINE_LIST in `slam_toolbox_edges` (here between consecutive vertices)."""
+    LINE_LIST in `slam_toolbox_edges` (here between consecutive vertices).
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamp: header stamp of every marker, seconds.
+    ids: (V,) vertex ids.
+    positions: (V, 2) x, y of the vertices.
+    frame_id: the markers' frame.
+
+    Returns
+    -------
+    The MarkerArray (V + 2 markers).
+    """
     header = header_message(types, stamp, frame_id)
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
     markers = [_marker(types, header, '', 0, MARKER_SPHERE, MARKER_DELETEALL)]
@@ -616,8 +833,22 @@ def new_node_event_message(types: MessageTypes, node_id: int, stamp: float, pose
                            step: np.ndarray | None = None,
                            covariance: np.ndarray | None = None):
     """A NewNodeEvent as slam_toolbox's publishNewNodeEvent fills it: the node, the stamp of its
-    scan, its pose, and the edge from node `node_id - 1` (relative pose `step`; zeros for the
-    first node, whose event has no such edge)."""
+    scan, its pose, and the edge from node `node_id - 1`.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    node_id: the new node's id; for 0 (the first node, whose event has no edge) the edge
+        runs from 0 to 0.
+    stamp: stamp of the scan the node was built from, seconds.
+    pose: (3,) x, y, yaw of the node.
+    step: (3,) relative pose of the edge; None for zeros.
+    covariance: (3, 3) or (9,) covariance of the edge; None for zeros.
+
+    Returns
+    -------
+    The NewNodeEvent message.
+    """
     step = np.zeros(3) if step is None else step
     covariance = np.zeros(9) if covariance is None else covariance
     source = node_id - 1 if node_id > 0 else 0
@@ -629,9 +860,22 @@ def new_node_event_message(types: MessageTypes, node_id: int, stamp: float, pose
 
 def pose_graph_message(types: MessageTypes, stamp: float, ids: np.ndarray, poses: np.ndarray,
                        frame_id: str = 'map', edges: np.ndarray | None = None):
-    """A PoseGraph of node ids (V,) at poses (V, 3), stamped `stamp` (slam_toolbox: its clock
-    when it built the message); `edges` (E, 2) node id pairs get the relative pose of their
-    nodes and an identity covariance."""
+    """A slam_toolbox PoseGraph.
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamp: header stamp in seconds (slam_toolbox: its clock when it built the message).
+    ids: (V,) node ids.
+    poses: (V, 3) x, y, yaw of the nodes.
+    frame_id: the header's frame.
+    edges: (E, 2) (source, target) node id pairs, each from `ids` (KeyError otherwise); each
+        gets the relative pose of its nodes and an identity covariance. None for no edges.
+
+    Returns
+    -------
+    The PoseGraph message.
+    """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     node = types('slam_toolbox/msg/GraphNode')
     nodes = [node(node_id=int(node_id), pose=geometry_pose(types, pose))
@@ -646,13 +890,28 @@ def pose_graph_message(types: MessageTypes, stamp: float, ids: np.ndarray, poses
 
 
 def loop_closure_event_message(types: MessageTypes, stamp: float):
-    """A LoopClosureEvent (only a stamp: slam_toolbox's clock at the end of the closure)."""
+    """A LoopClosureEvent (only a stamp: slam_toolbox's clock at the end of the closure).
+
+    Parameters
+    ----------
+    types: type name -> message class.
+    stamp: the stamp in seconds.
+
+    Returns
+    -------
+    The LoopClosureEvent message.
+    """
     return types(LOOP_CLOSURE_EVENT_TYPE)(stamp=time_message(types, stamp))
 
 
 def slam_toolbox_definitions() -> dict[str, str]:
-    """slam_toolbox's pose-graph message definitions shipped with this package (io/msg/):
-    type name -> .msg text."""
+    """slam_toolbox's pose-graph message definitions shipped with this package (io/msg/).
+
+    Returns
+    -------
+    Type name ('slam_toolbox/msg/PoseGraph', ...) -> .msg text, for GraphNode, GraphEdge,
+    PoseGraph, NewNodeEvent and LoopClosureEvent.
+    """
     from importlib.resources import files
     folder = files('map_consistency_ros.io').joinpath('msg', 'slam_toolbox')
     return {f'slam_toolbox/msg/{name}': folder.joinpath(f'{name}.msg').read_text()
@@ -662,7 +921,12 @@ def slam_toolbox_definitions() -> dict[str, str]:
 
 def register_slam_toolbox_types(typestore) -> None:
     """Register slam_toolbox's pose-graph messages in a rosbags typestore (bags are read and
-    written without slam_toolbox installed)."""
+    written without slam_toolbox installed).
+
+    Parameters
+    ----------
+    typestore: a rosbags Typestore, changed in place.
+    """
     from rosbags.typesys import get_types_from_msg
     types = {}
     for name, text in slam_toolbox_definitions().items():

@@ -9,7 +9,21 @@ from map_consistency_ros.io.errors import InputError
 
 def read_parameter_file(path: str | Path, node_name: str = 'map_consistency') -> dict[str, Any]:
     """The `ros__parameters` of `node_name` (or of the wildcard `/**`) in a ROS 2 parameter
-    file, later entries overriding earlier ones as rcl does; InputError for a bad file."""
+    file, later entries overriding earlier ones as rcl does.
+
+    Parameters
+    ----------
+    path: the YAML file, as given to `--ros-args --params-file`.
+    node_name: the node whose entry is read, with or without a leading '/'; entries of other
+        nodes are ignored.
+
+    Returns
+    -------
+    Parameter name -> value as YAML gives it; nested mappings become dotted names
+    ('a: {b: 1}' gives 'a.b'). Empty when the file has no entry for the node. Raises InputError
+    for an unreadable file, a file that is not YAML or has no node names at the top, or a
+    matching entry without a `ros__parameters` mapping.
+    """
     import yaml
     path = Path(path)
     try:
