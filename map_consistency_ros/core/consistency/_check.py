@@ -1,10 +1,10 @@
 """The statistical map-consistency test: from placed scans to per-scan and map verdicts.
 
 Pipeline (Mazuran et al., ICRA 2014): candidate pairs from the scans' extents, the pairwise
-measure M_ij / n_ij (measure.py), per-scan half-normal scales s_i from the incremental solution
-over temporally adjacent scans (eq. 10), the one-sided pairwise test on Psi_ij with
-s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8). The map is
-consistent when no scan fails. Notation as in statistics.py.
+measure M_ij / n_ij (geometry/_measure.py), per-scan half-normal scales s_i from the
+incremental solution over temporally adjacent scans (eq. 10), the one-sided pairwise test on
+Psi_ij with s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8).
+The map is consistent when no scan fails. Notation as in statistics.py.
 """
 from __future__ import annotations
 
