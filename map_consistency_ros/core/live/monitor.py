@@ -124,7 +124,7 @@ class MonitorSnapshot:
         Returns
         -------
         A ScanSet of the N keyframes in stamp order, the laser at `laser_offset` from each
-        pose. ValueError when there is no keyframe (`model` None).
+        pose. Needs at least one keyframe (`result` not None).
         """
         return ScanSet.from_ranges(self.ranges, sensor_poses(self.poses, self.laser_offset),
                                    self.model)
