@@ -70,8 +70,19 @@ class ParameterSpec:
         return text
 
     def check(self, value: Any) -> Any:
-        """The value in the parameter's type (a member of `enum` for a Choice); ValueError
-        naming the parameter otherwise."""
+        """Check a value against the declaration.
+
+        Parameters
+        ----------
+        value: a value given for the parameter (a YAML, ROS or command-line value, or a
+            member of `enum`).
+
+        Returns
+        -------
+        The value in the parameter's type (a member of `enum` for a Choice); ValueError naming
+        the parameter when it has the wrong type, lies outside `bounds` or is not one of
+        `choices`.
+        """
         if self.enum is not None and isinstance(value, self.enum):
             return value
         value = _typed(self, value)
@@ -125,11 +136,11 @@ def parameter(default: Any, description: str, unit: str = '',
 
     Parameters
     ----------
-    default : the value when none is given; its type is the parameter's (a member of
+    default: the value when none is given; its type is the parameter's (a member of
         `choices` when that is a Choice enum)
-    description, unit : the documentation (help texts, the parameter file, docs/node.md)
-    bounds : inclusive range of a number
-    choices : the allowed strings, or a Choice enum whose members are
+    description, unit: the documentation (help texts, the parameter file, docs/node.md)
+    bounds: inclusive range of a number
+    choices: the allowed strings, or a Choice enum whose members are
 
     Returns
     -------
@@ -164,7 +175,7 @@ def specs(settings_class: type) -> list[ParameterSpec]:
 
     Parameters
     ----------
-    settings_class : a dataclass whose parameter fields are declared with `parameter(...)`
+    settings_class: a dataclass whose parameter fields are declared with `parameter(...)`
 
     Returns
     -------
@@ -190,10 +201,10 @@ def settings_from_values(settings_class: type, values: Mapping[str, Any], **extr
 
     Parameters
     ----------
-    settings_class : a settings dataclass (see `Settings`)
-    values : name -> value; names that are not parameters of the class are ignored, missing
+    settings_class: a settings dataclass (see `Settings`)
+    values: name -> value; names that are not parameters of the class are ignored, missing
         parameters take their defaults
-    extra : further constructor arguments (fields that are not parameters)
+    extra: further constructor arguments (fields that are not parameters)
 
     Returns
     -------
@@ -205,7 +216,18 @@ def settings_from_values(settings_class: type, values: Mapping[str, Any], **extr
 
 
 def closest_name(name: str, names: Iterable[str]) -> str | None:
-    """The valid name a misspelt one most likely meant, None when nothing is close."""
+    """The valid name a misspelt one most likely meant.
+
+    Parameters
+    ----------
+    name: the misspelt name.
+    names: the valid names.
+
+    Returns
+    -------
+    The shortest valid name containing `name`, else the closest by difflib's similarity (at
+    least 0.6); None when nothing is close.
+    """
     names = list(names)
     # a shortened name ('trim' for trim_largest) first: a similarity ratio of short names
     # finds unrelated ones ('strict')
@@ -217,7 +239,17 @@ def closest_name(name: str, names: Iterable[str]) -> str | None:
 
 
 def unknown_names(values: Iterable[str], known: Iterable[str]) -> list[str]:
-    """One warning per unknown name, naming the closest valid one."""
+    """One warning per unknown name, naming the closest valid one.
+
+    Parameters
+    ----------
+    values: the names given (a parameter file's, the command line's).
+    known: the valid names.
+
+    Returns
+    -------
+    The warnings, one line each, sorted by the unknown name; empty when every name is known.
+    """
     known = list(known)
     warnings = []
     for name in sorted(set(values) - set(known)):
@@ -245,8 +277,17 @@ def _yaml_value(value: Any) -> str:
 
 
 def yaml_document(groups: Sequence[tuple[str, type]], header: str) -> str:
-    """A ROS parameter file of every parameter of `groups` (title, settings class) at its
-    default, one comment line each."""
+    """A ROS parameter file of every parameter of `groups` at its default.
+
+    Parameters
+    ----------
+    groups: (title, settings class) pairs, in the order of the file.
+    header: text of the file's opening comment (one comment line per line).
+
+    Returns
+    -------
+    The YAML text (`/**: ros__parameters:`), each parameter under its help text as comment.
+    """
     lines = [f'# {line}' if line else '#' for line in header.splitlines()]
     lines += ['/**:', '  ros__parameters:']
     for title, settings_class in groups:
@@ -258,7 +299,16 @@ def yaml_document(groups: Sequence[tuple[str, type]], header: str) -> str:
 
 
 def markdown_table(groups: Sequence[tuple[str, type]]) -> str:
-    """The parameters of `groups` as a Markdown table (name, default, range, unit, meaning)."""
+    """The parameters of `groups` as a Markdown table.
+
+    Parameters
+    ----------
+    groups: (title, settings class) pairs; each title opens its group's rows.
+
+    Returns
+    -------
+    The table's text, columns name, default, range, unit, meaning.
+    """
     lines = ['| name | default | range | unit | meaning |', '|---|---|---|---|---|']
     for title, settings_class in groups:
         lines.append(f'| **{title}** | | | | |')

@@ -72,7 +72,12 @@ class PairLikelihoods:
     event_count: np.ndarray
 
     def normalised(self) -> np.ndarray:
-        """Mean log-likelihood per scored cell (-inf where nothing was scored)."""
+        """Mean log-likelihood per scored cell.
+
+        Returns
+        -------
+        (P,) log_likelihood / event_count, -inf where nothing was scored.
+        """
         return np.where(self.event_count > 0,
                         self.log_likelihood / np.maximum(self.event_count, 1), -np.inf)
 
@@ -93,6 +98,17 @@ def traverse_cells(x0: float, y0: float, x1: float, y1: float, out: np.ndarray) 
 
     Amanatides-Woo traversal: a 4-connected walk visits exactly |dx cells| + |dy cells| + 1
     cells, which bounds the loop even when rounding misses the end cell.
+
+    Parameters
+    ----------
+    x0, y0: the start of the segment in cell units (cell (c, c) spans [c, c + 1)).
+    x1, y1: its end, in cell units.
+    out: (L, 2) int64 buffer with L at least the cell count; rows [0, count) receive the
+        cells (x, y).
+
+    Returns
+    -------
+    count, the number of cells written; the last is the end point's cell.
     """
     cx, cy = int(np.floor(x0)), int(np.floor(y0))
     ex, ey = int(np.floor(x1)), int(np.floor(y1))
@@ -214,7 +230,17 @@ def _pair_kernel(grids: np.ndarray, cell_size: float, poses: np.ndarray, ranges:
 
 
 def local_grids(scans: ScanSet, parameters: BaselineParameters) -> LocalGrids:
-    """The occupancy grid of every scan, just wide enough for its longest beam."""
+    """The occupancy grid of every scan, just wide enough for its longest beam.
+
+    Parameters
+    ----------
+    scans: the N scans (only their ranges, valid beams and model are used).
+    parameters: the baseline's parameters (cell_size).
+
+    Returns
+    -------
+    The LocalGrids of the N scans, G = 2 ceil(longest range / cell_size) + 3 cells wide.
+    """
     reach = float(np.max(scans.ranges)) if scans.ranges.size else 0.0
     size = 2 * int(np.ceil(reach / parameters.cell_size)) + 3
     cells = _build_grids(scans.ranges, scans.valid, scans.model.bearings(scans.ranges.shape[1]),
@@ -226,7 +252,17 @@ def pair_log_likelihoods(scans: ScanSet, pairs: np.ndarray, parameters: Baseline
                          grids: LocalGrids | None = None) -> PairLikelihoods:
     """Score every pair (i, j): scan i on the grid of j plus scan j on the grid of i.
 
-    `grids` (from `local_grids`) may be passed when the same scans are scored repeatedly.
+    Parameters
+    ----------
+    scans: the N scans placed in the world.
+    pairs: (P, 2) rows (i, j) of `scans` (ValueError when out of range).
+    parameters: the baseline's parameters.
+    grids: the scans' grids from `local_grids`, when the same scans are scored repeatedly;
+        None builds them. ValueError when built for other scans or another cell size.
+
+    Returns
+    -------
+    The PairLikelihoods of the P pairs, in the given order.
     """
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if pairs.size and (pairs.min() < 0 or pairs.max() >= len(scans.ranges)):
@@ -245,7 +281,15 @@ def pair_log_likelihoods(scans: ScanSet, pairs: np.ndarray, parameters: Baseline
 def map_statistic(likelihoods: PairLikelihoods, parameters: BaselineParameters) -> float:
     """The map's log-likelihood statistic: a low quantile of the per-pair means.
 
-    Returns +inf when no pair has `min_events` scored cells (nothing contradicts the map).
+    Parameters
+    ----------
+    likelihoods: the pairs' scores.
+    parameters: the baseline's parameters (min_events, quantile).
+
+    Returns
+    -------
+    The `quantile` quantile of the mean log-likelihoods of the pairs with at least `min_events`
+    scored cells; +inf when there is none (nothing contradicts the map).
     """
     overlapping = likelihoods.event_count >= parameters.min_events
     if not np.any(overlapping):

@@ -1,10 +1,10 @@
 """The statistical map-consistency test: from placed scans to per-scan and map verdicts.
 
 Pipeline (Mazuran et al., ICRA 2014): candidate pairs from the scans' extents, the pairwise
-measure M_ij / n_ij (measure.py), per-scan half-normal scales s_i from the incremental solution
-over temporally adjacent scans (eq. 10), the one-sided pairwise test on Psi_ij with
-s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8). The map is
-consistent when no scan fails. Notation as in statistics.py.
+measure M_ij / n_ij (geometry/_measure.py), per-scan half-normal scales s_i from the
+incremental solution over temporally adjacent scans (eq. 10), the one-sided pairwise test on
+Psi_ij with s = max(s_i, s_j) (eqs. 5-6), and the cascaded binomial test per scan (eqs. 7-8).
+The map is consistent when no scan fails. Notation as in statistics.py.
 """
 from __future__ import annotations
 
@@ -67,6 +67,12 @@ class ConsistencyParameters(Settings):
         return _half_window(self.local_window)
 
     def as_dict(self) -> dict:
+        """The parameters as plain data.
+
+        Returns
+        -------
+        A dict of every field by name (dataclasses.asdict).
+        """
         return asdict(self)
 
 
@@ -94,16 +100,30 @@ class ConsistencyResult:
     parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def own_scales(self) -> np.ndarray:
-        """(N,) s_i fitted on the map itself, from its measured pairs that join temporal
-        neighbours: how its scans agree with their neighbours. The same as `scales` unless the
-        test fitted those on an incremental solution."""
+        """s_i fitted on the map itself, from its measured pairs that join temporal neighbours:
+        how its scans agree with their neighbours.
+
+        Returns
+        -------
+        (N,) scales in metres; the same as `scales` unless the test fitted those on an
+        incremental solution.
+        """
         local = np.abs(self.pairs[:, 1] - self.pairs[:, 0]) <= self.parameters.local_reach
         return _scales_from_sums(self.pairs[local], self.trimmed_sum[local],
                                  self.trimmed_count[local], self.scan_count, self.parameters)
 
     @classmethod
     def untested(cls, parameters: ConsistencyParameters) -> ConsistencyResult:
-        """The result on no scans (where an incremental evaluation starts)."""
+        """The result on no scans (where an incremental evaluation starts).
+
+        Parameters
+        ----------
+        parameters: the parameters the result is of.
+
+        Returns
+        -------
+        A consistent result with zero pairs and zero scans.
+        """
         empty, counts = np.zeros(0), np.zeros(0, dtype=np.int64)
         flags = np.zeros(0, dtype=bool)
         return cls(pairs=np.zeros((0, 2), dtype=np.int64), distance_sum=empty,
@@ -139,7 +159,13 @@ class ConsistencyResult:
         return int(np.count_nonzero(self.failed))
 
     def summary(self) -> dict:
-        """The figures a report or a diagnostic shows."""
+        """The figures a report or a diagnostic shows.
+
+        Returns
+        -------
+        A dict of ints: scans, candidate_pairs, overlapping_pairs, tested_pairs, failed_pairs,
+        inconsistent_scans, and the bool consistent.
+        """
         return {
             'scans': self.scan_count,
             'candidate_pairs': int(self.pairs.shape[0]),
@@ -152,7 +178,18 @@ class ConsistencyResult:
 
 
 def robust_sums(measures: PairMeasures, trim: int) -> tuple[np.ndarray, np.ndarray]:
-    """M_ij and n_ij without each pair's `trim` largest distances."""
+    """M_ij and n_ij without each pair's largest distances.
+
+    Parameters
+    ----------
+    measures: the P pairs' measures, keeping at least `trim` largest distances (else
+        ValueError).
+    trim: how many of each pair's largest distances to drop (0: none).
+
+    Returns
+    -------
+    (trimmed M_ij (P,) in metres, never negative; trimmed n_ij (P,)).
+    """
     if trim == 0:
         return measures.distance_sum, measures.point_count
     if measures.largest.shape[1] < trim:
@@ -168,9 +205,19 @@ def local_scales(measures: PairMeasures, scan_count: int,
                  robust: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """s_i of every scan (eq. 10): the largest scale bound over its measured local pairs.
 
-    `measures` are the pairs of temporally adjacent scans measured on the incremental solution.
-    Scans without a usable local pair get `default_scale`; all are floored at `min_scale`.
-    `robust`: see `robust_statistic`.
+    Parameters
+    ----------
+    measures: the pairs of temporally adjacent scans measured on the incremental solution.
+    scan_count: N, the scans of the map.
+    parameters: the test's parameters (local_alpha, min_points, trim_largest, default_scale,
+        min_scale).
+    robust: the pairs' trimmed (M_ij, n_ij) when the caller keeps them (see
+        `robust_statistic`); None computes them here.
+
+    Returns
+    -------
+    (N,) s_i in metres. Scans without a usable local pair get `default_scale`; all are floored
+    at `min_scale`.
     """
     distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
                            else robust)
@@ -219,10 +266,19 @@ def robust_statistic(measures: PairMeasures, pair_scale: np.ndarray,
                      parameters: ConsistencyParameters,
                      robust: tuple[np.ndarray, np.ndarray] | None = None
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Which pairs have enough points to test, and their trimmed Psi_ij (NaN where untested).
+    """Which pairs have enough points to test, and their trimmed Psi_ij.
 
-    `robust` are the pairs' trimmed (M_ij, n_ij) (`robust_sums`) when the caller keeps them
-    per pair as it measures them (the incremental monitor), else they are computed here.
+    Parameters
+    ----------
+    measures: the P pairs' measures.
+    pair_scale: (P,) the scale s of each pair in metres (or one for all).
+    parameters: the test's parameters (min_points, trim_largest).
+    robust: the pairs' trimmed (M_ij, n_ij) (`robust_sums`) when the caller keeps them per pair
+        as it measures them (the incremental monitor); None computes them here.
+
+    Returns
+    -------
+    (tested (P,) bool, Psi_ij (P,) NaN where untested).
     """
     distance_sum, count = (robust_sums(measures, parameters.trim_largest) if robust is None
                            else robust)
@@ -238,12 +294,24 @@ def evaluate_pairs(measures: PairMeasures, scales: np.ndarray, scan_count: int,
                    first_rows: np.ndarray | None = None) -> ConsistencyResult:
     """The pairwise and cascaded tests on already measured pairs (no geometry).
 
-    `robust`: see `robust_statistic`. `previous`: the result of these parameters on the first
-    rows of these very pairs and sums (a map that only grew since): only the new pairs and
-    the pairs of scans whose scale changed are tested again, with the same result as testing
-    every pair (a live map has a million pairs, an update changes a few thousand).
-    `first_rows` (N,), with `previous`: no pair of scan i lies before row first_rows[i] (0
-    when unknown), so the rows before those of the new and rescaled scans are not even read.
+    Parameters
+    ----------
+    measures: the P measured pairs (i < j).
+    scales: (N,) s_i of every scan, metres (else ValueError).
+    scan_count: N.
+    parameters: the test's parameters.
+    robust: see `robust_statistic`.
+    previous: the result of these parameters on the first rows of these very pairs and sums (a
+        map that only grew since): only the new pairs and the pairs of scans whose scale
+        changed are tested again, with the same result as testing every pair (a live map has a
+        million pairs, an update changes a few thousand). None tests every pair. ValueError
+        when it cannot be such a prefix.
+    first_rows: (N,), with `previous`: no pair of scan i lies before row first_rows[i] (0 when
+        unknown), so the rows before those of the new and rescaled scans are not even read.
+
+    Returns
+    -------
+    The ConsistencyResult of the P pairs and N scans.
     """
     scales = np.asarray(scales, dtype=np.float64)
     if scales.shape != (scan_count,):
@@ -327,7 +395,17 @@ def _pairwise_tests(pairs: np.ndarray, trimmed_sum: np.ndarray, trimmed_count: n
 
 
 def local_pairs(scans: ScanSet, window: int) -> np.ndarray:
-    """Pairs of temporally adjacent scans (index distance <= window / 2) whose extents overlap."""
+    """Pairs of temporally adjacent scans whose extents overlap.
+
+    Parameters
+    ----------
+    scans: the N scans in temporal order.
+    window: the local window; scans at most max(window // 2, 1) indices apart are adjacent.
+
+    Returns
+    -------
+    (P, 2) int64 rows (i, j), i < j, ordered by i then j.
+    """
     half = _half_window(window)
     count = scans.extents.shape[0]
     first = np.repeat(np.arange(count), half)
@@ -343,8 +421,18 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
                       progress: Progress | None = None) -> ConsistencyResult:
     """Run the whole test on scans placed in the map.
 
-    `reference_scans` are the same scans at the incremental solution (poses before loop
-    closures), from which the local scales are fitted; by default the map itself.
+    Parameters
+    ----------
+    scans: the N scans at their map poses, in temporal order.
+    parameters: the test's parameters; None for the defaults.
+    reference_scans: the same scans at the incremental solution (poses before loop closures),
+        from which the local scales are fitted; None fits them on the map itself. ValueError
+        when their ranges differ in shape from `scans`.
+    progress: called as progress(pairs measured, all pairs) while the pairs are measured.
+
+    Returns
+    -------
+    The ConsistencyResult of every candidate pair and scan.
     """
     parameters = parameters or ConsistencyParameters()
     reference = scans if reference_scans is None else reference_scans
@@ -364,7 +452,16 @@ def check_consistency(scans: ScanSet, parameters: ConsistencyParameters | None =
 
 
 def average_inconsistency(measures: PairMeasures) -> float:
-    """M(Phi) of eq. 11: the mean M_ij over the pairs whose polygons overlap (n_ij > 0)."""
+    """M(Phi) of eq. 11: the mean M_ij over the pairs whose polygons overlap (n_ij > 0).
+
+    Parameters
+    ----------
+    measures: the measured pairs.
+
+    Returns
+    -------
+    The mean in metres; 0.0 when no pair overlaps.
+    """
     overlapping = measures.point_count > 0
     if not overlapping.any():
         return 0.0
@@ -373,11 +470,22 @@ def average_inconsistency(measures: PairMeasures) -> float:
 
 def inconsistent_endpoints(scans: ScanSet, result: ConsistencyResult,
                            max_pairs: int | None = None, min_depth: float = 0.0) -> np.ndarray:
-    """End points (M, 2) inside the other scan's polygon in failed pairs (the paper's Fig. 1).
+    """End points inside the other scan's polygon in failed pairs (the paper's Fig. 1).
 
-    Only failed pairs that involve an inconsistent scan count, the `max_pairs` with the largest
-    statistic (all when None), so that a badly broken map stays cheap to draw. A point counts
-    when it lies deeper than `min_depth` times the pair's scale max(s_i, s_j) inside.
+    Only failed pairs that involve an inconsistent scan count.
+
+    Parameters
+    ----------
+    scans: the scans `result` was computed on.
+    result: the test's result.
+    max_pairs: only the pairs with the largest statistic, this many (all when None), so that
+        a badly broken map stays cheap to draw.
+    min_depth: a point counts when it lies deeper than this many times the pair's scale
+        max(s_i, s_j) inside.
+
+    Returns
+    -------
+    (M, 2) world end points in metres.
     """
     flagged = result.inconsistent[result.pairs[:, 0]] | result.inconsistent[result.pairs[:, 1]]
     candidates = np.flatnonzero(result.failed & flagged)
@@ -390,8 +498,20 @@ _ENDPOINT_CHUNK = 2048  # pairs whose point distances are held at once (a few MB
 
 def pair_endpoints(scans: ScanSet, result: ConsistencyResult, rows: np.ndarray,
                    min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """End points (M, 2) of the pairs `rows` of `result` lying deeper than `min_depth` pair
-    scales inside the other scan's polygon, and the scan each belongs to (M,)."""
+    """End points of some pairs lying inside the other scan's polygon.
+
+    Parameters
+    ----------
+    scans: the scans `result` was computed on.
+    result: the test's result.
+    rows: rows of `result.pairs`.
+    min_depth: a point counts when it lies deeper than this many times the pair's scale
+        max(s_i, s_j) inside.
+
+    Returns
+    -------
+    (world end points (M, 2), the scan each belongs to (M,) int64).
+    """
     pairs = result.pairs[np.asarray(rows, dtype=np.int64)]
     points, owners = [np.zeros((0, 2))], [np.zeros(0, dtype=np.int64)]
     for start in range(0, len(pairs), _ENDPOINT_CHUNK):  # (P, 2, K) floats at a time

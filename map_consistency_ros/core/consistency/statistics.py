@@ -24,7 +24,16 @@ HALFNORMAL_STD_FACTOR = math.sqrt(1.0 - 2.0 / math.pi)
 
 
 def normal_quantile(upper_tail: float) -> float:
-    """F^-1(1 - upper_tail) of the standard normal distribution."""
+    """F^-1(1 - upper_tail) of the standard normal distribution.
+
+    Parameters
+    ----------
+    upper_tail: the probability of the upper tail, in (0, 1) (else ValueError).
+
+    Returns
+    -------
+    The x with P(X > x) = upper_tail for X ~ N(0, 1).
+    """
     if not 0.0 < upper_tail < 1.0:
         raise ValueError(f'a tail probability must be in (0, 1), got {upper_tail}')
     # the standard library's quantile (Wichura's AS241, as scipy's ndtri): scipy.special
@@ -37,6 +46,14 @@ def chi_square_3_quantile(upper_tail: float) -> float:
 
     Its survival function has the closed form erfc(sqrt(x / 2)) + sqrt(2 x / pi) exp(-x / 2),
     decreasing in x; bisection finds the quantile to the last bit.
+
+    Parameters
+    ----------
+    upper_tail: the probability of the upper tail, in (0, 1) (else ValueError).
+
+    Returns
+    -------
+    The quantile x (> 0).
     """
     if not 0.0 < upper_tail < 1.0:
         raise ValueError(f'a tail probability must be in (0, 1), got {upper_tail}')
@@ -61,10 +78,17 @@ COVARIANCE_RCOND = 1e-12
 
 
 def mahalanobis_squared(delta: np.ndarray, covariance: np.ndarray) -> np.ndarray:
-    """(E,) delta^T C^-1 delta of vectors delta (E, D) under covariances C (E, D, D); NaN where
-    C does not determine delta in every direction.
+    """delta^T C^-1 delta of each vector under its covariance.
 
-    Undetermined: C or delta holds a non-finite number, or C is not symmetric positive definite
+    Parameters
+    ----------
+    delta: (E, D) vectors.
+    covariance: (E, D, D) their covariances C (symmetrised before use).
+
+    Returns
+    -------
+    (E,) the squared Mahalanobis distances; NaN where C does not determine delta in every
+    direction: C or delta holds a non-finite number, or C is not symmetric positive definite
     to `COVARIANCE_RCOND` of its largest eigenvalue (a zero matrix from a fit that left no
     residual, a corridor that fixes nothing along its axis). Never raises for such a C, unlike
     a matrix inverse.
@@ -88,8 +112,18 @@ def mahalanobis_squared(delta: np.ndarray, covariance: np.ndarray) -> np.ndarray
 
 @njit(cache=True, error_model='numpy')
 def psi(distance_sum: float, point_count: float, scale: float) -> float:
-    """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5);
-    NaN for a pair without points: it carries no evidence either way."""
+    """Psi_ij = (M_ij - mu n_ij) / (sigma sqrt(n_ij)) with mu, sigma from the scale s (eq. 5).
+
+    Parameters
+    ----------
+    distance_sum: M_ij, the pair's summed distances in metres.
+    point_count: n_ij, the number of its end points inside the other polygon.
+    scale: s, the half-normal scale of one distance in metres.
+
+    Returns
+    -------
+    Psi_ij; NaN for a pair without points: it carries no evidence either way.
+    """
     if not point_count > 0.0:
         return np.nan
     mean, deviation = HALFNORMAL_MEAN_FACTOR * scale, HALFNORMAL_STD_FACTOR * scale
@@ -106,7 +140,18 @@ def _psi_of(distance_sum: np.ndarray, point_count: np.ndarray, scale: np.ndarray
 
 def standardized_inconsistency(distance_sum: np.ndarray, point_count: np.ndarray,
                                scale: np.ndarray | float) -> np.ndarray:
-    """psi of every pair (arrays broadcast together)."""
+    """psi of every pair.
+
+    Parameters
+    ----------
+    distance_sum: M_ij of each pair, metres.
+    point_count: n_ij of each pair.
+    scale: s of each pair (or one for all), metres; the three broadcast together.
+
+    Returns
+    -------
+    Psi_ij, float64 of the broadcast shape, NaN for pairs without points.
+    """
     arrays = np.broadcast_arrays(np.asarray(distance_sum, dtype=np.float64),
                                  np.asarray(point_count, dtype=np.float64),
                                  np.asarray(scale, dtype=np.float64))
@@ -118,6 +163,16 @@ def scale_bound(distance_sum: np.ndarray, point_count: np.ndarray, alpha: float)
     """The smallest s with which a pair passes the pairwise test at level alpha (eq. 10).
 
     s >= (M_ij / n_ij) / (sqrt(2/pi) + F^-1(1 - alpha) sqrt((1 - 2/pi) / n_ij)).
+
+    Parameters
+    ----------
+    distance_sum: M_ij of each pair, metres.
+    point_count: n_ij of each pair, of the shape of `distance_sum` (or broadcastable).
+    alpha: the level of the pairwise test, in (0, 1).
+
+    Returns
+    -------
+    The bound of each pair in metres, 0 for pairs without points.
     """
     count = np.asarray(point_count, dtype=np.float64)
     quantile = normal_quantile(alpha)
@@ -183,6 +238,17 @@ def binomial_critical_count(trials: np.ndarray, probability: float, alpha: float
     """nu-hat of eq. 7 for each number of trials r: min nu with P(X > nu) <= alpha', X ~ B(r, p).
 
     Computed in log space (eq. 8), stable for r in the tens of thousands.
+
+    Parameters
+    ----------
+    trials: numbers of trials r (pairwise tests of a scan), non-negative integers, any shape.
+    probability: p, the chance that one pairwise test fails, in (0, 1).
+    alpha: alpha', the level of the binomial test, in (0, 1).
+
+    Returns
+    -------
+    int64 nu-hat for each r, of the shape of `trials`. Raises ValueError for p or alpha'
+    outside (0, 1) or a negative r.
     """
     if not 0.0 < probability < 1.0:
         raise ValueError(f'failure probability must be in (0, 1), got {probability}')

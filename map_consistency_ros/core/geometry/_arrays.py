@@ -7,8 +7,19 @@ import numpy as np
 
 
 def with_rows(array: np.ndarray, rows: int, fill: float = 0) -> np.ndarray:
-    """A new array of `rows` rows that starts with `array`'s (cut if longer); the added rows
-    hold `fill`."""
+    """A new array of `rows` rows that starts with `array`'s (cut if longer).
+
+    Parameters
+    ----------
+    array: (N, ...) the rows to keep; it is not changed.
+    rows: the number of rows of the new array.
+    fill: the value of the added rows (cast to `array`'s dtype).
+
+    Returns
+    -------
+    A new (rows, ...) array of `array`'s dtype: its first min(rows, N) rows are `array`'s, the
+    others hold `fill`.
+    """
     grown = np.full((rows, *array.shape[1:]), fill, dtype=array.dtype)
     kept = min(rows, len(array))
     grown[:kept] = array[:kept]

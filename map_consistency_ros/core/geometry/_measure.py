@@ -324,10 +324,19 @@ def _measure(scans: ScanSet, pairs: np.ndarray, keep_largest: int, naive: bool) 
 
 
 def pair_measures(scans: ScanSet, pairs: np.ndarray, keep_largest: int = 10) -> PairMeasures:
-    """M_ij, n_ij and the keep_largest largest distances of every pair (i, j) in `pairs` (P, 2).
+    """M_ij, n_ij and the largest distances of every pair.
 
-    Pairs are returned with i < j, in the given order. Raises ValueError for indices out of
-    range or a scan paired with itself.
+    Parameters
+    ----------
+    scans: the N scans placed in the world.
+    pairs: (P, 2) integer rows of `scans` (i, j), in either order; an empty array means none.
+    keep_largest: T, how many of each pair's largest distances to keep (non-negative).
+
+    Returns
+    -------
+    The PairMeasures of the P pairs, in the given order, each pair as (i, j) with i < j.
+    Raises ValueError for indices out of range, a scan paired with itself or a bad
+    keep_largest.
     """
     return _measure(scans, pairs, keep_largest, naive=False)
 
@@ -377,22 +386,50 @@ def _threads_for(pair_count: int) -> Iterator[None]:
 
 
 def pair_measures_naive(scans: ScanSet, pairs: np.ndarray, keep_largest: int = 10) -> PairMeasures:
-    """pair_measures by the O(K^2)-per-pair reference (ray crossing, every edge)."""
+    """pair_measures by the O(K^2)-per-pair reference (ray crossing, every edge).
+
+    Parameters
+    ----------
+    scans, pairs, keep_largest: as pair_measures.
+
+    Returns
+    -------
+    The PairMeasures, as pair_measures gives them (up to rounding).
+    """
     return _measure(scans, pairs, keep_largest, naive=True)
 
 
 def point_distances(scans: ScanSet, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-    """(d_i of the end points of j, d_j of the end points of i), each (K,).
+    """The distances d_i(p) and d_j(p) of one pair's end points.
 
-    Zero where the end point is invalid or outside the other polygon.
+    Parameters
+    ----------
+    scans: the N scans placed in the world.
+    i, j: rows of two scans in `scans`.
+
+    Returns
+    -------
+    (d_i of the end points of j, d_j of the end points of i), each (K,) in metres: zero where
+    the end point is invalid or outside the other polygon.
     """
     distances = pairs_point_distances(scans, np.array([[i, j]]))[0]
     return distances[0], distances[1]
 
 
 def pairs_point_distances(scans: ScanSet, pairs: np.ndarray) -> np.ndarray:
-    """(P, 2, K): for each pair (i, j) of `pairs` (P, 2), d_i of the end points of j and d_j of
-    the end points of i (zero where the end point is invalid or outside the other polygon)."""
+    """The distances d_i(p) and d_j(p) of the end points of several pairs.
+
+    Parameters
+    ----------
+    scans: the N scans placed in the world.
+    pairs: (P, 2) rows (i, j) of `scans` (any shape of 2P values is reshaped).
+
+    Returns
+    -------
+    (P, 2, K) distances in metres: [p, 0] d_i of the end points of j, [p, 1] d_j of the end
+    points of i, zero where the end point is invalid or outside the other polygon. Raises
+    ValueError for an index out of range.
+    """
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if pairs.size and not (pairs.min() >= 0 and pairs.max() < scans.scan_count):
         bad = pairs[(pairs < 0) | (pairs >= scans.scan_count)][0]

@@ -51,11 +51,26 @@ class SensorModel:
                              f'range_min ({self.range_min})')
 
     def is_full_circle(self, beam_count: int) -> bool:
-        """Whether beam_count beams cover the whole circle (the polygon has no sensor vertex)."""
+        """Whether beam_count beams cover the whole circle (the polygon has no sensor vertex).
+
+        Parameters
+        ----------
+        beam_count: K, the beams of a scan.
+
+        Returns
+        -------
+        True when K * angle_increment reaches 2 pi (within FULL_CIRCLE_TOLERANCE).
+        """
         return beam_count * self.angle_increment >= 2.0 * math.pi - FULL_CIRCLE_TOLERANCE
 
     def check_beam_count(self, beam_count: int) -> None:
-        """Raise ValueError unless beam_count beams form a polygon without overlapping beams."""
+        """Raise ValueError unless beam_count beams form a polygon without overlapping beams.
+
+        Parameters
+        ----------
+        beam_count: K, the beams of a scan: at least 2, covering at most 2 pi (plus half a
+            beam).
+        """
         if beam_count < 2:
             raise ValueError(f'a scan needs at least 2 beams, got {beam_count}')
         cover = beam_count * self.angle_increment
@@ -65,7 +80,16 @@ class SensorModel:
                              f'(they cover {cover:.9f} rad); drop the repeated beams')
 
     def bearings(self, beam_count: int) -> np.ndarray:
-        """Bearing of every beam in the sensor frame, (beam_count,)."""
+        """Bearing of every beam in the sensor frame.
+
+        Parameters
+        ----------
+        beam_count: K, the beams of a scan.
+
+        Returns
+        -------
+        (K,) bearings in radians, angle_min + k * angle_increment.
+        """
         return self.angle_min + np.arange(beam_count) * self.angle_increment
 
 
@@ -120,9 +144,19 @@ class ScanSet:
     @classmethod
     def from_ranges(cls, ranges: np.ndarray, sensor_poses: np.ndarray,
                     model: SensorModel) -> ScanSet:
-        """Scans from raw ranges (N, K), NaN / inf / out-of-range allowed, at sensor poses (N, 3).
+        """Scans from raw ranges.
 
-        Raises ValueError for wrong shapes, non-finite poses or overlapping beams.
+        Parameters
+        ----------
+        ranges: (N, K) ranges in metres; NaN, inf and ranges outside (range_min, max_range)
+            are allowed and become non-valid beams closed at max_range.
+        sensor_poses: (N, 3) world poses (x, y, theta) of the sensor, finite.
+        model: the beam geometry of every scan.
+
+        Returns
+        -------
+        The ScanSet of the N scans. Raises ValueError for wrong shapes, non-finite poses or
+        overlapping beams.
         """
         ranges = np.asarray(ranges, dtype=np.float64)
         poses = np.asarray(sensor_poses, dtype=np.float64)
@@ -133,8 +167,19 @@ class ScanSet:
                    valid=valid, model=model)
 
     def moved(self, rows: np.ndarray, transforms: np.ndarray) -> ScanSet:
-        """The scans `rows` moved rigidly by world transforms (len(rows), 3), p -> R p + t:
-        poses and end points are transformed, not recomputed from the ranges."""
+        """Some scans moved rigidly: poses and end points are transformed, not recomputed from
+        the ranges.
+
+        Parameters
+        ----------
+        rows: (R,) rows of this set (or anything that indexes its arrays).
+        transforms: (R, 3) world transforms (x, y, theta), one per row, applied as
+            p -> R p + t.
+
+        Returns
+        -------
+        A new ScanSet of the R moved scans, in the order of `rows`.
+        """
         transforms = np.asarray(transforms, dtype=np.float64).reshape(-1, 3)
         cos, sin = np.cos(transforms[:, 2])[:, None], np.sin(transforms[:, 2])[:, None]
         poses = se2.compose(transforms, self.sensor_poses[rows])
@@ -146,14 +191,34 @@ class ScanSet:
                                   extents=_extents(xs, ys, poses))
 
     def take(self, rows: np.ndarray) -> ScanSet:
-        """The scans `rows` of this set, without recomputing their geometry."""
+        """Some scans of this set, without recomputing their geometry.
+
+        Parameters
+        ----------
+        rows: rows of this set (indices or a boolean mask).
+
+        Returns
+        -------
+        A new ScanSet of those scans, in the order of `rows`.
+        """
         return ScanSet.from_parts(self.model, **{name: getattr(self, name)[rows]
                                                  for name in SCAN_ARRAYS})
 
     @classmethod
     def from_parts(cls, model: SensorModel, **arrays: np.ndarray) -> ScanSet:
-        """A set from the arrays of earlier ScanSets (the fields of SCAN_ARRAYS, rows picked or
-        stacked from them): their geometry is taken as it is, not recomputed."""
+        """A set from the arrays of earlier ScanSets: their geometry is taken as it is, not
+        recomputed.
+
+        Parameters
+        ----------
+        model: the beam geometry of the scans.
+        arrays: exactly the fields of SCAN_ARRAYS, rows picked or stacked from earlier sets.
+
+        Returns
+        -------
+        The ScanSet (read-only, contiguous copies where needed). Raises ValueError when the
+        arrays are not exactly SCAN_ARRAYS.
+        """
         if set(arrays) != set(SCAN_ARRAYS):
             raise ValueError(f'need exactly the arrays {SCAN_ARRAYS}, got {sorted(arrays)}')
         scans = object.__new__(cls)
@@ -173,7 +238,16 @@ class ScanSet:
         return self.model.is_full_circle(self.ranges.shape[1])
 
     def with_poses(self, sensor_poses: np.ndarray) -> ScanSet:
-        """The same scans seen from other sensor poses (N, 3)."""
+        """The same scans seen from other sensor poses.
+
+        Parameters
+        ----------
+        sensor_poses: (N, 3) the new world poses of the sensor, one per scan.
+
+        Returns
+        -------
+        A new ScanSet, its end points and extents computed again from the ranges.
+        """
         return ScanSet(sensor_poses=sensor_poses, ranges=self.ranges, valid=self.valid,
                        model=self.model)
 

@@ -27,7 +27,16 @@ def _checked_extents(extents: np.ndarray) -> np.ndarray:
 
 
 def extents_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether boxes (..., 4) a and b overlap, elementwise with broadcasting (closed boxes)."""
+    """Whether boxes overlap, elementwise with broadcasting (closed boxes: touching counts).
+
+    Parameters
+    ----------
+    a, b: (..., 4) boxes (xmin, ymin, xmax, ymax), broadcastable against each other.
+
+    Returns
+    -------
+    (...) boolean array, True where the boxes overlap.
+    """
     return ((a[..., 0] <= b[..., 2]) & (b[..., 0] <= a[..., 2])
             & (a[..., 1] <= b[..., 3]) & (b[..., 1] <= a[..., 3]))
 
@@ -80,9 +89,17 @@ def _sweep_pairs(extents: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 def candidate_pairs(extents: np.ndarray) -> np.ndarray:
-    """All pairs (i, j), i < j, of boxes (N, 4) that overlap, as a sorted (P, 2) int64 array.
+    """All pairs of boxes that overlap.
 
     Sort and sweep along x: each box meets the boxes that start within its x interval.
+
+    Parameters
+    ----------
+    extents: (N, 4) finite boxes (xmin, ymin, xmax, ymax) with xmin <= xmax, ymin <= ymax.
+
+    Returns
+    -------
+    (P, 2) int64 rows (i, j), i < j, sorted. Raises ValueError for malformed extents.
     """
     extents = _checked_extents(extents)
     return _sweep_pairs(extents, np.argsort(extents[:, 0], kind='stable'))
@@ -133,7 +150,15 @@ class ScanExtentIndex:
         return row
 
     def update(self, ids: np.ndarray, extents: np.ndarray) -> None:
-        """Insert scans or move them to new extents (len(ids), 4)."""
+        """Insert scans or move them to new extents.
+
+        Parameters
+        ----------
+        ids: (M,) scan ids, none repeated; known ids are moved, the others inserted.
+        extents: (M, 4) their boxes (xmin, ymin, xmax, ymax) in metres.
+
+        Raises ValueError for repeated ids, a count mismatch or malformed extents.
+        """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         extents = _checked_extents(extents)
         if len(ids) != len(extents):
@@ -150,7 +175,13 @@ class ScanExtentIndex:
             self._cells[scan_id] = cells
 
     def remove(self, ids: np.ndarray) -> None:
-        """Forget scans; raises KeyError (and forgets none) if an id is not in the index."""
+        """Forget scans.
+
+        Parameters
+        ----------
+        ids: the scan ids to forget; raises KeyError (and forgets none) if one is not in the
+            index.
+        """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
         self._check_known(ids)
         for scan_id in ids:
@@ -162,7 +193,16 @@ class ScanExtentIndex:
                     del self._grid[cell]
 
     def pairs_touching(self, ids: np.ndarray) -> np.ndarray:
-        """Every overlapping pair (i, j), i < j, that involves one of `ids`, sorted (P, 2)."""
+        """Every overlapping pair that involves one of `ids`.
+
+        Parameters
+        ----------
+        ids: scan ids in the index; raises KeyError if one is not.
+
+        Returns
+        -------
+        (P, 2) int64 rows (i, j) of scan ids, i < j, unique and sorted.
+        """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
         self._check_known(ids)
         rows, neighbours = [], []

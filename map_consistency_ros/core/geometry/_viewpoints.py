@@ -18,10 +18,20 @@ import numpy as np
 
 
 def viewpoint_rows(poses: np.ndarray, spacing: float, turn: float) -> np.ndarray:
-    """Rows (V,) of the viewpoints among `poses` (N, 3) in travel order, the first always one.
+    """The viewpoints among poses in travel order, the first pose always one.
 
     A pose becomes a viewpoint when it lies at least `spacing` metres or `turn` radians from the
     last viewpoint (so with either 0 every pose is one).
+
+    Parameters
+    ----------
+    poses: (N, 3) poses (x, y, theta) in travel order (any shape of 3N values is reshaped).
+    spacing: the travel in metres that makes a new viewpoint.
+    turn: the change of heading in radians that makes a new viewpoint.
+
+    Returns
+    -------
+    (V,) int64 rows of `poses`, increasing; empty when N is 0.
     """
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 3)
     if poses.shape[0] == 0:
@@ -30,8 +40,19 @@ def viewpoint_rows(poses: np.ndarray, spacing: float, turn: float) -> np.ndarray
 
 
 def is_new_viewpoint(step: np.ndarray, spacing: float, turn: float) -> bool:
-    """Whether a pose `step` (3,) away from the last viewpoint (its relative pose) is a new
-    viewpoint: the rule of `viewpoint_rows`, one pose at a time, for a live trajectory."""
+    """Whether a pose is a new viewpoint: the rule of `viewpoint_rows`, one pose at a time, for
+    a live trajectory.
+
+    Parameters
+    ----------
+    step: (3,) the pose relative to the last viewpoint (x, y in metres, theta in radians).
+    spacing: the travel in metres that makes a new viewpoint.
+    turn: the change of heading in radians that makes a new viewpoint.
+
+    Returns
+    -------
+    True when the step moves at least `spacing` or turns at least `turn`.
+    """
     shift = math.hypot(float(step[0]), float(step[1]))
     heading = abs(math.remainder(float(step[2]), 2.0 * math.pi))
     return shift >= spacing or heading >= turn

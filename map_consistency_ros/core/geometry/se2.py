@@ -3,15 +3,31 @@ import numpy as np
 
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Map angles to [-pi, pi)."""
+    """Map angles to [-pi, pi).
+
+    Parameters
+    ----------
+    angle: angles in radians, a scalar or an array of any shape.
+
+    Returns
+    -------
+    The angles shifted by multiples of 2 pi into [-pi, pi), of `angle`'s shape.
+    """
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def yaw_from_quaternion(x, y, z, w):
     """Rotation about z of (possibly unnormalised) quaternions, scalars or arrays.
 
-    NaN where a quaternion has no heading: a non-finite component (arctan2 would turn an
-    infinite one into a plausible angle) or a zero norm.
+    Parameters
+    ----------
+    x, y, z, w: the quaternions' components, scalars or arrays of one broadcastable shape.
+
+    Returns
+    -------
+    The yaw in radians, in [-pi, pi]: a float for scalar components, else an array. NaN where a
+    quaternion has no heading: a non-finite component (arctan2 would turn an infinite one into
+    a plausible angle) or a zero norm.
     """
     x, y, z, w = (np.asarray(v, dtype=np.float64) for v in (x, y, z, w))
     # w^2 + x^2 - y^2 - z^2 rather than 1 - 2 (y^2 + z^2): the same for unit quaternions,
@@ -25,12 +41,31 @@ def yaw_from_quaternion(x, y, z, w):
 
 
 def quaternion_from_yaw(yaw: float) -> tuple[float, float]:
-    """(z, w) of the unit quaternion of a rotation by `yaw` about z (x = y = 0)."""
+    """The unit quaternion of a rotation about z.
+
+    Parameters
+    ----------
+    yaw: the rotation in radians.
+
+    Returns
+    -------
+    Its (z, w) components (x = y = 0).
+    """
     return float(np.sin(0.5 * yaw)), float(np.cos(0.5 * yaw))
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a (+) b: the pose b, given relative to a, expressed in a's parent frame."""
+    """a (+) b: the pose b, given relative to a, expressed in a's parent frame.
+
+    Parameters
+    ----------
+    a: (..., 3) poses (x, y, theta) in their parent frame, metres and radians.
+    b: (..., 3) poses relative to `a`, broadcastable against it.
+
+    Returns
+    -------
+    (..., 3) the composed poses, theta wrapped to [-pi, pi).
+    """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     cos_a, sin_a = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -40,7 +75,16 @@ def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def inverse(a: np.ndarray) -> np.ndarray:
-    """The pose that undoes a: compose(a, inverse(a)) is the identity."""
+    """The pose that undoes a: compose(a, inverse(a)) is the identity.
+
+    Parameters
+    ----------
+    a: (..., 3) poses (x, y, theta).
+
+    Returns
+    -------
+    (..., 3) their inverses, theta wrapped to [-pi, pi).
+    """
     a = np.asarray(a, dtype=np.float64)
     cos_a, sin_a = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = -cos_a * a[..., 0] - sin_a * a[..., 1]
@@ -49,14 +93,31 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 (+) b: the pose b expressed in the frame of a."""
+    """a^-1 (+) b: the pose b expressed in the frame of a.
+
+    Parameters
+    ----------
+    a: (..., 3) the poses whose frames to express `b` in.
+    b: (..., 3) poses in the same parent frame as `a`, broadcastable against it.
+
+    Returns
+    -------
+    (..., 3) `b` relative to `a`, theta wrapped to [-pi, pi).
+    """
     return compose(inverse(a), b)
 
 
 def chain(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Poses reached from `start` by composing the relative `steps` (M, 3) in order.
+    """Poses reached from `start` by composing the relative steps in order.
 
-    Returns M + 1 poses, the first being `start`.
+    Parameters
+    ----------
+    start: (3,) the first pose.
+    steps: (M, 3) relative poses, each given in the frame of the pose before it.
+
+    Returns
+    -------
+    (M + 1, 3) the poses, the first being `start`.
     """
     poses = np.empty((len(steps) + 1, 3))
     poses[0] = start

@@ -17,10 +17,10 @@ record did, including every warning, so the node and replay report the same prob
 - `Constraints`: the pose-graph edges for DCS retuning.
 - With `pose_source: slam_toolbox`, `PoseSample`s (slam_toolbox's `pose`, one per accepted
   scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
-  (core/graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
+  (core/live/_graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
   keyframe estimate.
 - With `pose_source: slam_toolbox_graph`, `NodeEvent`s, `LoopClosure`s and `PoseGraphNodes`
-  (slam_toolbox's pose-graph interface) go to the PoseGraphBridge (core/pose_graph_bridge.py);
+  (slam_toolbox's pose-graph interface) go to the PoseGraphBridge (core/live/_pose_graph_bridge.py);
   after each, unless the bridge waits for the graph of a loop closure, its keyframes are
   applied as a keyframe estimate.
 
@@ -144,10 +144,26 @@ class PoseKeyframer:
         self.dropped = 0
 
     def add_scan(self, scan: Scan) -> None:
+        """Hold a scan until a pose at or after its stamp arrives (`add_pose`).
+
+        Parameters
+        ----------
+        scan: the scan, in stamp order with the others.
+        """
         self._pending.append(scan)
 
     def add_pose(self, sample: PoseSample) -> list[Scan]:
-        """Place the scans the new pose brackets; return those that became keyframes."""
+        """Place the scans the new pose brackets.
+
+        Parameters
+        ----------
+        sample: the next pose, stamped later than the previous one (else ValueError).
+
+        Returns
+        -------
+        The held scans that became keyframes, in stamp order; their stamps and poses are
+        appended to `stamps` and `poses`.
+        """
         if self._poses and sample.stamp <= self._poses[-1][0]:
             raise ValueError(f'pose at {sample.stamp:.6f} is not later than the previous one')
         self._poses.append((sample.stamp, sample.pose))
@@ -198,7 +214,17 @@ class ScanGaps:
         self.missing = 0
 
     def add(self, stamp: float) -> int:
-        """Record one scan stamp; the number of scans missing just before it."""
+        """Record one scan stamp.
+
+        Parameters
+        ----------
+        stamp: the scan's stamp, seconds.
+
+        Returns
+        -------
+        The number of scans missing just before it (0 unless the rate is steady and the gap
+        long); added to `missing`.
+        """
         missing = 0
         if self._last is not None and stamp > self._last:
             interval = stamp - self._last
@@ -255,7 +281,12 @@ class MonitorFeed:
         self._taken_stamp = math.nan  # the newest estimate the monitor took
 
     def reset(self, reason: str) -> None:
-        """Forget every scan, keyframe and constraint (a new SLAM session)."""
+        """Forget every scan, keyframe and constraint (a new SLAM session).
+
+        Parameters
+        ----------
+        reason: why, kept as `last_reset`.
+        """
         self.resets += 1
         self.last_reset = reason
         self._start()
@@ -279,7 +310,17 @@ class MonitorFeed:
         return None if self.bridge is None else self.bridge.counts
 
     def apply(self, record: Record) -> Applied:
-        """Apply one record; bad content becomes a warning, never an exception."""
+        """Apply one record; bad content becomes a warning, never an exception.
+
+        Parameters
+        ----------
+        record: one input record (TypeError for anything else).
+
+        Returns
+        -------
+        What it did: the update (None when the map did not change), its warnings, the reason
+        when it reset the monitor.
+        """
         if isinstance(record, Scan):
             return self._scan(record)
         if isinstance(record, KeyframeEstimate):

@@ -92,7 +92,18 @@ class HeadingFit:
 
 
 def neighbourhoods(count: int, window: int) -> np.ndarray:
-    """(count, 2 window + 1) indices of each element's neighbours in a sequence, -1 off its ends."""
+    """The neighbours of each element of a sequence.
+
+    Parameters
+    ----------
+    count: the length of the sequence.
+    window: the neighbours on each side.
+
+    Returns
+    -------
+    (count, 2 window + 1) int indices of k - window .. k + window for each element k, -1 off
+    the sequence's ends.
+    """
     offsets = np.arange(-window, window + 1)
     index = np.arange(count)[:, None] + offsets[None, :]
     return np.where((index >= 0) & (index < count), index, -1)
@@ -102,14 +113,24 @@ def fit_rotations(reference: np.ndarray, current: np.ndarray, window: int,
                   still_tolerance: float) -> HeadingFit:
     """Least-squares rigid motion of each point's neighbourhood from `reference` to `current`.
 
-    `reference`, `current` (V, 2): the same V points, ordered along the trajectory. A point
-    that moved at most `still_tolerance` is still: no correction reached it since its
+    A point that moved at most `still_tolerance` is still: no correction reached it since its
     reference was taken, so its rotation is zero. For a moved point k the neighbourhood is
     the moved points among k - window .. k + window (truncated at the ends): a still
     neighbour's reference was taken after the correction that moved k (slam_toolbox publishes
     a scan's pose after the loop closure that scan triggered), so it would pull the fit
     towards no rotation. The rotation maximises sum (R a_j) . b_j over the centred
     neighbourhood points a (reference) and b (current): angle = atan2(sum a x b, sum a . b).
+
+    Parameters
+    ----------
+    reference: (V, 2) the points' reference positions, metres, ordered along the trajectory.
+    current: (V, 2) the same V points' current positions.
+    window: the neighbours on each side of a point.
+    still_tolerance: the largest motion of a still point, metres.
+
+    Returns
+    -------
+    The HeadingFit of the V points.
     """
     index = neighbourhoods(len(reference), window)
     safe = np.where(index >= 0, index, 0)
@@ -134,12 +155,23 @@ def fit_rotations(reference: np.ndarray, current: np.ndarray, window: int,
 
 
 def interpolate_rotations(rotation: np.ndarray, trusted: np.ndarray) -> np.ndarray:
-    """`rotation` (V,) with the untrusted entries interpolated along the sequence from trusted ones.
+    """Rotations with the untrusted entries interpolated along the sequence from trusted ones.
 
     A loop-closure correction rotates the trajectory smoothly along it, so a vertex whose own
     neighbourhood cannot show the rotation (too small, or not moved rigidly) takes it from the
     nearest trusted vertices on either side (the nearest one beyond the ends); with no trusted
     vertex at all the rotation is zero, i.e. the reference headings are kept.
+
+    Parameters
+    ----------
+    rotation: (V,) radians, in sequence order.
+    trusted: (V,) bool, the entries to interpolate from.
+
+    Returns
+    -------
+    (V,) radians: linear interpolation over the index of the unwrapped trusted rotations (so
+    trusted entries may differ from `rotation` by multiples of 2 pi); zeros when none is
+    trusted.
     """
     if not trusted.any():
         return np.zeros_like(rotation)
@@ -204,10 +236,19 @@ class SlamToolboxBridge:
                                     interpolated=0, empty_snapshots=0)
 
     def waits_for_poses(self, ids: np.ndarray) -> bool:
-        """Whether a snapshot of vertex `ids` names vertices whose pose message has not come yet.
+        """Whether a snapshot names vertices whose pose message has not come yet.
 
         slam_toolbox publishes every vertex's `pose` before any snapshot holding it, so such a
-        snapshot overtook poses on their way (the topics are delivered independently)."""
+        snapshot overtook poses on their way (the topics are delivered independently).
+
+        Parameters
+        ----------
+        ids: (V,) the snapshot's vertex ids.
+
+        Returns
+        -------
+        True when its largest id lies beyond the pose messages received so far.
+        """
         return bool(len(ids)) and int(np.max(ids)) >= (self.settings.first_vertex_id
                                                        + len(self._stamps))
 
@@ -217,13 +258,19 @@ class SlamToolboxBridge:
         return self._counts
 
     def add_pose(self, stamp: float, pose: np.ndarray) -> None:
-        """One `pose` message: the next vertex's stamp and first-seen pose (x, y, yaw).
+        """One `pose` message: the next vertex's stamp and first-seen pose.
 
-        Raises ValueError for a non-finite stamp or pose, or a stamp already received (a
-        replayed message or a restarted session, which would shift every later association).
         Stamps need not increase: the association is by arrival order, and slam_toolbox
         processes scans in arrival order whatever their stamps (the Intel log has 4 scans
         stamped before their predecessor).
+
+        Parameters
+        ----------
+        stamp: the message's stamp (its scan's), seconds.
+        pose: (3,) the pose (x, y, yaw) in the map frame.
+
+        Raises ValueError for a non-finite stamp or pose, or a stamp already received (a
+        replayed message or a restarted session, which would shift every later association).
         """
         value = _finite(pose, (3,), 'pose')
         if not np.isfinite(stamp):
@@ -235,13 +282,19 @@ class SlamToolboxBridge:
         self._first_seen.append(value.copy())
 
     def update_vertices(self, ids: np.ndarray, positions: np.ndarray) -> None:
-        """One graph_visualization snapshot: vertex ids (V,) and their positions (V, 2).
+        """One graph_visualization snapshot; it replaces the previous one.
 
         A snapshot without vertices is ignored and counted: slam_toolbox publishes no graph
         while it is empty, so an empty one means interactive mode (the vertices go to the
-        interactive marker server), not that every keyframe is gone. Raises ValueError (and
-        keeps the previous snapshot) for duplicate, negative or non-integer ids, or positions
-        that are not finite (V, 2).
+        interactive marker server), not that every keyframe is gone.
+
+        Parameters
+        ----------
+        ids: (V,) vertex ids (the markers' ids).
+        positions: (V, 2) their current positions in the map frame, metres.
+
+        Raises ValueError (and keeps the previous snapshot) for duplicate, negative or
+        non-integer ids, or positions that are not finite (V, 2).
         """
         vertex_ids = _vertex_ids(ids)
         points = _finite(positions, (len(vertex_ids), 2), 'positions')
@@ -258,7 +311,13 @@ class SlamToolboxBridge:
         self._positions = points[order]
 
     def keyframes(self) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps (M,), poses (M, 3)): every associated vertex at its current pose, in id order."""
+        """The current estimate; it also sets `counts`.
+
+        Returns
+        -------
+        (stamps (M,), poses (M, 3)): every vertex of the snapshot with its pose message, at
+        its current pose, in id order.
+        """
         index, poses, trusted = self._estimate()
         self._counts = BridgeCounts(
             keyframes=len(index),

@@ -50,7 +50,16 @@ def match_stamps(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
 
 
 def rank_of_slot(order: np.ndarray) -> np.ndarray:
-    """The stamp-order rank of every slot, from the slots in stamp order (Keyframes.order)."""
+    """The stamp-order rank of every slot.
+
+    Parameters
+    ----------
+    order: (N,) the slots in stamp order (Keyframes.order).
+
+    Returns
+    -------
+    (N,) int64: rank[slot] is the slot's position in `order`.
+    """
     ranks = np.empty(order.size, dtype=np.int64)
     ranks[order] = np.arange(order.size)
     return ranks
@@ -102,7 +111,19 @@ class Keyframes:
 
     def append(self, stamp: float, pose: np.ndarray, incremental: np.ndarray,
                ranges: np.ndarray) -> int:
-        """Register a keyframe; returns its slot (the next one)."""
+        """Register a keyframe.
+
+        Parameters
+        ----------
+        stamp: the stamp of its scan, seconds.
+        pose: (3,) its current pose (x, y, yaw).
+        incremental: (3,) its pose on the incremental solution (never changes).
+        ranges: (K,) its scan's ranges, metres.
+
+        Returns
+        -------
+        Its slot (the next one, `count` before the call).
+        """
         if self.count == self.stamps.size:
             rows = 2 * self.count
             self.stamps, self.poses, self.incremental, self.ranges = (
@@ -119,32 +140,74 @@ class Keyframes:
         return slot
 
     def fold(self, stamps: list[float]) -> None:
-        """Record the stamps of scans folded into their previous viewpoint."""
+        """Record the stamps of scans folded into their previous viewpoint.
+
+        Parameters
+        ----------
+        stamps: the folded scans' stamps, seconds, in any order (empty: nothing to do).
+        """
         if stamps:
             self.folded = np.sort(np.concatenate([self.folded, stamps]))
 
     def order(self) -> np.ndarray:
-        """Slots in stamp order (read-only)."""
+        """The slots in stamp order.
+
+        Returns
+        -------
+        (count,) int64 read-only view, stable for equal stamps.
+        """
         return read_only(self._order)
 
     def in_stamp_order(self) -> bool:
-        """Whether every keyframe arrived in stamp order (then rank == slot)."""
+        """Whether every keyframe arrived in stamp order.
+
+        Returns
+        -------
+        True when `order()` is 0..count-1 (then rank == slot).
+        """
         return bool(np.array_equal(self._order, np.arange(self.count)))
 
     def match(self, queries: np.ndarray) -> np.ndarray:
-        """The slot whose stamp is nearest to each query within the tolerance, -1 where none."""
+        """The keyframes of some stamps.
+
+        Parameters
+        ----------
+        queries: (Q,) stamps, seconds.
+
+        Returns
+        -------
+        (Q,) int64: the slot whose stamp is nearest to each query within the tolerance, -1
+        where none.
+        """
         return match_stamps(queries, self.stamps[:self.count], self.tolerance, self._order)
 
     def holds(self, stamp: float) -> bool:
-        """Whether `stamp` is a keyframe's or a folded scan's (within the tolerance)."""
+        """Whether a stamp is already known.
+
+        Parameters
+        ----------
+        stamp: a scan's stamp, seconds.
+
+        Returns
+        -------
+        True when it is a keyframe's or a folded scan's (within the tolerance).
+        """
         query = np.array([stamp])
         return bool(self.match(query)[0] >= 0 or self._folded_match(query)[0])
 
     def trajectory_slots(self, stamps: np.ndarray) -> np.ndarray:
-        """For each pose stamp (sorted) of a trajectory: its keyframe slot, FOLDED or NO_SCAN.
+        """The keyframe of every pose of a trajectory.
 
         Of several poses within the tolerance of one keyframe only the nearest holds its slot
         (_claimed_twice); a pose without a keyframe whose stamp is a folded scan's is FOLDED.
+
+        Parameters
+        ----------
+        stamps: (M,) the trajectory's pose stamps (sorted), seconds.
+
+        Returns
+        -------
+        (M,) int64: each pose's keyframe slot, FOLDED or NO_SCAN.
         """
         slots = (np.full(stamps.size, NO_SCAN, dtype=np.int64) if self.count == 0
                  else self.match(stamps))

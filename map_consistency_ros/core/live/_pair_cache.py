@@ -22,13 +22,31 @@ _SLOT_BITS = 31
 
 
 def pair_keys(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """The keys of the pairs (first[p], second[p]) of slots, in either order."""
+    """The keys of pairs of slots.
+
+    Parameters
+    ----------
+    first, second: (P,) the slots of each pair, in either order (each below 2^31).
+
+    Returns
+    -------
+    (P,) int64 keys: low << 31 | high of each pair.
+    """
     low, high = np.minimum(first, second), np.maximum(first, second)
     return (low.astype(np.int64) << _SLOT_BITS) | high.astype(np.int64)
 
 
 def key_slots(keys: np.ndarray) -> np.ndarray:
-    """(P, 2) the slots (low, high) of pair keys."""
+    """The slots of pair keys (the inverse of `pair_keys`).
+
+    Parameters
+    ----------
+    keys: (P,) int64 pair keys.
+
+    Returns
+    -------
+    (P, 2) int64 the slots (low, high) of each pair.
+    """
     return np.stack([keys >> _SLOT_BITS, keys & ((1 << _SLOT_BITS) - 1)], axis=1)
 
 
@@ -74,11 +92,22 @@ class PairCache:
         self.size = kept
 
     def retain(self, keys: np.ndarray) -> None:
-        """Drop every entry whose key is not in `keys`."""
+        """Drop every entry whose key is not in `keys` (a drop: `generation` changes).
+
+        Parameters
+        ----------
+        keys: the keys of the pairs to keep (any order; keys not cached are ignored).
+        """
         self._keep(np.isin(self.keys, keys))
 
     def drop_slots(self, slots: np.ndarray, slot_count: int) -> None:
-        """Drop every pair that involves one of `slots` (all below `slot_count`)."""
+        """Drop every pair that involves one of some slots.
+
+        Parameters
+        ----------
+        slots: int slots whose pairs go (empty: nothing happens).
+        slot_count: a bound above every slot of `slots` and of the cached pairs.
+        """
         if slots.size == 0:
             return
         hit = np.zeros(slot_count, dtype=bool)
@@ -88,21 +117,41 @@ class PairCache:
             self._keep(~involved)
 
     def first_rows(self, slot_count: int) -> np.ndarray:
-        """(slot_count,) no pair of slot s lies before entry first_rows[s]."""
+        """Where the pairs of each slot can begin.
+
+        Parameters
+        ----------
+        slot_count: N, the slots asked for.
+
+        Returns
+        -------
+        (N,) int64: no pair of slot s lies before entry first_rows[s] (0 when unknown).
+        """
         rows = np.zeros(slot_count, dtype=np.int64)
         known = min(slot_count, self._first_rows.size)
         rows[:known] = self._first_rows[:known]
         return rows
 
     def mark_new(self, slots: np.ndarray) -> None:
-        """`slots` have no pair yet: theirs are all inserted from now on."""
+        """Note slots that have no pair yet: theirs are all inserted from now on.
+
+        Parameters
+        ----------
+        slots: int slots of new keyframes.
+        """
         if slots.size and slots.max() >= self._first_rows.size:
             self._first_rows = with_rows(self._first_rows,
                                          max(int(slots.max()) + 1, 2 * self._first_rows.size))
         self._first_rows[slots] = self.size
 
     def insert(self, keys: np.ndarray, measures: PairMeasures) -> None:
-        """Append the pairs `keys` (none of them cached) with their `measures`, same order."""
+        """Append pairs with their measures; their trimmed sums are computed here.
+
+        Parameters
+        ----------
+        keys: (P,) keys of pairs none of which is cached.
+        measures: the P pairs' measures, in the order of `keys`.
+        """
         end = self.size + keys.size
         if end > self._pairs.shape[0]:
             capacity = max(2 * self._pairs.shape[0], end)
@@ -118,8 +167,18 @@ class PairCache:
         self.size = end
 
     def measures(self, rank_of_slot: np.ndarray | None) -> PairMeasures:
-        """The cached pairs as PairMeasures over scan indices `rank_of_slot[slot]` (i < j);
-        None means ranks are slots. Read-only views (see the module)."""
+        """The cached pairs as PairMeasures over scan indices.
+
+        Parameters
+        ----------
+        rank_of_slot: the scan index of each slot (rank_of_slot[slot]); None means the scan
+            indices are the slots.
+
+        Returns
+        -------
+        PairMeasures of the `size` entries in insertion order, each pair (i, j) with i < j;
+        read-only views (see the module).
+        """
         if rank_of_slot is None:
             pairs = self.pairs
         else:  # each row (i, j) with i < j; sorting rows of two is many times slower
@@ -131,6 +190,11 @@ class PairCache:
                             largest=read_only(self._largest[:self.size]))
 
     def robust(self) -> tuple[np.ndarray, np.ndarray]:
-        """The trimmed (M_ij, n_ij) of the cached pairs, in the order of `measures`."""
+        """The trimmed sums of the cached pairs.
+
+        Returns
+        -------
+        (trimmed M_ij (size,), trimmed n_ij (size,)), read-only, in the order of `measures`.
+        """
         return (read_only(self._trimmed_sum[:self.size]),
                 read_only(self._trimmed_count[:self.size]))

@@ -22,7 +22,12 @@ class Placement:
         self._model: SensorModel | None = None
 
     def invalidate(self, slots: np.ndarray) -> None:
-        """Slots whose pose changed: placed again when next asked for."""
+        """Note slots whose pose changed: they are placed again when next asked for.
+
+        Parameters
+        ----------
+        slots: keyframe slots (slots never placed are ignored).
+        """
         slots = np.asarray(slots, dtype=np.int64)
         self._fresh[slots[slots < self._fresh.size]] = False
 

@@ -63,11 +63,22 @@ class PoseGraphBridge:
         self._removed = 0
 
     def add_node(self, node_id: int, stamp: float, pose: np.ndarray) -> bool:
-        """A new-node event; False when it repeats one already taken (same id and stamp).
+        """Take a new-node event.
 
-        ValueError for a known id with another stamp (a restarted session reuses ids: the
-        stamps say which scan, so one id cannot name two) and for a stamp already naming
-        another node (each node is built from its own scan)."""
+        Parameters
+        ----------
+        node_id: the node's id in the graph.
+        stamp: the stamp of the scan it was built from, seconds.
+        pose: (3,) its pose (x, y, yaw) when it was added; a graph's pose of the node, when
+            one came first, is kept.
+
+        Returns
+        -------
+        True when taken, False when it repeats one already taken (same id and stamp).
+        ValueError for a non-finite stamp or pose, a known id with another stamp (a restarted
+        session reuses ids: the stamps say which scan, so one id cannot name two) and for a
+        stamp already naming another node (each node is built from its own scan).
+        """
         node_id = int(node_id)
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if not (math.isfinite(stamp) and np.all(np.isfinite(pose))):
@@ -92,7 +103,12 @@ class PoseGraphBridge:
 
     def loop_closure(self, stamp: float) -> None:
         """A loop-closure event: withhold estimates until a graph built after it arrives
-        (one that already arrived, the topics being unordered, ends the wait at once)."""
+        (one that already arrived, the topics being unordered, ends the wait at once).
+
+        Parameters
+        ----------
+        stamp: the event's stamp, seconds of slam_toolbox's clock (ValueError if not finite).
+        """
         if not math.isfinite(stamp):
             raise ValueError('loop closure event with a non-finite stamp')
         self._loop_closures += 1
@@ -100,7 +116,17 @@ class PoseGraphBridge:
             self._closed_at = stamp if self._closed_at is None else max(self._closed_at, stamp)
 
     def update_graph(self, ids: np.ndarray, poses: np.ndarray, stamp: float) -> None:
-        """A full pose graph: node ids (V,) at poses (V, 3), header stamp `stamp`."""
+        """Take a full pose graph.
+
+        Parameters
+        ----------
+        ids: (V,) node ids, none repeated.
+        poses: (V, 3) their poses (x, y, yaw), finite.
+        stamp: the message's header stamp, seconds of slam_toolbox's clock; a non-finite one
+            ends no wait for a loop closure.
+
+        ValueError (state unchanged) for a count mismatch, repeated ids or non-finite poses.
+        """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         if len(ids) != len(poses):
@@ -136,7 +162,12 @@ class PoseGraphBridge:
         return self._closed_at is not None
 
     def keyframes(self) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps (M,), poses (M, 3)) of every node with its scan's stamp, in id order."""
+        """The current estimate (see `waiting` for whether to use it).
+
+        Returns
+        -------
+        (stamps (M,), poses (M, 3)) of every node with its scan's stamp, in id order.
+        """
         nodes = sorted(node for node in self._poses if node in self._stamps)
         stamps = np.array([self._stamps[node] for node in nodes], dtype=np.float64)
         poses = (np.array([self._poses[node] for node in nodes]) if nodes

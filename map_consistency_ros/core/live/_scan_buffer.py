@@ -31,7 +31,13 @@ class ScanBuffer:
         return stamp in self._scans
 
     def add(self, stamp: float, ranges: np.ndarray) -> None:
-        """Hold one scan; the oldest go when more than `capacity` are held."""
+        """Hold one scan; the oldest go when more than `capacity` are held.
+
+        Parameters
+        ----------
+        stamp: the scan's stamp, seconds (a scan already held at it is replaced).
+        ranges: (K,) its ranges, metres.
+        """
         self._scans[stamp] = ranges
         self.newest = max(self.newest, stamp)
         while len(self._scans) > self.capacity:
@@ -39,11 +45,29 @@ class ScanBuffer:
             self.dropped += 1
 
     def pop(self, stamp: float) -> np.ndarray:
-        """The ranges of the scan at exactly `stamp`, which leaves the buffer."""
+        """Take a scan out of the buffer.
+
+        Parameters
+        ----------
+        stamp: exactly the stamp of a held scan (KeyError otherwise).
+
+        Returns
+        -------
+        (K,) the scan's ranges; the scan leaves the buffer.
+        """
         return self._scans.pop(stamp)
 
     def matches(self, stamps: np.ndarray) -> np.ndarray:
-        """For each of `stamps`, the stamp of the held scan matching it, NaN where none."""
+        """The held scans that match some stamps (nearest within `tolerance`).
+
+        Parameters
+        ----------
+        stamps: (Q,) pose stamps, seconds.
+
+        Returns
+        -------
+        (Q,) for each of `stamps`, the stamp of the held scan matching it, NaN where none.
+        """
         held = np.fromiter(self._scans, dtype=np.float64, count=len(self._scans))
         found = match_stamps(stamps, held, self.tolerance)
         return np.where(found >= 0, held[np.maximum(found, 0)] if held.size else np.nan,

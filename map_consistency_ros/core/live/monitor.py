@@ -9,9 +9,9 @@ estimate. The monitor keeps, per keyframe:
   incremental pose. Local scales (consistency.local_scales, eq. 10 of the paper) are fitted on
   pairs of temporally adjacent keyframes at their incremental poses, which a later loop closure
   never changes;
-- cached pair measures (M_ij / n_ij, measure.py) at the current poses. When a trajectory moves
-  poses (a loop closure), only pairs that involve moved or new keyframes are measured again,
-  with candidates from a spatial index of the scans' extents.
+- cached pair measures (M_ij / n_ij, core/geometry/_measure.py) at the current poses. When a
+  trajectory moves poses (a loop closure), only pairs that involve moved or new keyframes are
+  measured again, with candidates from a spatial index of the scans' extents.
 
 Keyframes are identified by a stable slot (registration order); statistics run on keyframes in
 stamp order. The test runs only when asked for (`evaluate`), once per change of the map. Not
@@ -112,20 +112,36 @@ class MonitorSnapshot:
     dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
     poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
     folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
-    estimate_stamp: float = math.nan  # the estimate these poses are (MonitorFeed.evaluate)
+    estimate_stamp: float = math.nan  # the estimate these poses are (LivePipeline.evaluate)
 
     @property
     def keyframe_count(self) -> int:
         return int(self.stamps.size)
 
     def scans(self) -> ScanSet:
-        """The keyframes' scans placed at their current poses."""
+        """The keyframes' scans placed at their current poses.
+
+        Returns
+        -------
+        A ScanSet of the N keyframes in stamp order, the laser at `laser_offset` from each
+        pose. Needs at least one keyframe (`result` not None).
+        """
         return ScanSet.from_ranges(self.ranges, sensor_poses(self.poses, self.laser_offset),
                                    self.model)
 
 
 def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
-    """Poses of the laser for keyframe poses (N, 3) and the laser pose in the keyframe frame."""
+    """Poses of the laser for keyframe poses.
+
+    Parameters
+    ----------
+    keyframe_poses: (N, 3) keyframe poses (x, y, yaw).
+    laser_offset: (3,) the laser's pose in the keyframe frame.
+
+    Returns
+    -------
+    (N, 3) the laser's poses, keyframe_pose (+) laser_offset.
+    """
     return se2.compose(keyframe_poses, np.broadcast_to(laser_offset, keyframe_poses.shape))
 
 
@@ -194,9 +210,16 @@ class ConsistencyMonitor:
     def add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
         """Buffer one scan until a trajectory names its pose.
 
-        NaN / inf beams are kept (they count as free space up to max range). Raises ValueError
-        for a non-finite stamp, fewer than 2 beams, beams overlapping past 2 pi, a beam geometry
-        that differs from the first scan's, or a stamp already registered as a keyframe.
+        Parameters
+        ----------
+        stamp: the scan's stamp, seconds.
+        ranges: (K,) metres; NaN / inf beams are kept (they count as free space up to max
+            range).
+        model: its beam geometry; the first scan's fixes every later scan's.
+
+        Raises ValueError for a non-finite stamp, fewer than 2 beams, beams overlapping past
+        2 pi, a beam geometry that differs from the first scan's, or a stamp already registered
+        as a keyframe.
         """
         stamp = float(stamp)
         ranges = np.asarray(ranges, dtype=np.float64)
@@ -220,7 +243,16 @@ class ConsistencyMonitor:
         self._buffer.add(stamp, ranges)
 
     def pose_problem(self, pose: np.ndarray) -> str:
-        """Why a single pose (3,) is unusable ('' when it is usable)."""
+        """Why a single pose is unusable.
+
+        Parameters
+        ----------
+        pose: (3,) a pose (x, y, yaw).
+
+        Returns
+        -------
+        The reason (non-finite values, beyond max_pose_extent), '' when it is usable.
+        """
         pose = np.asarray(pose, dtype=np.float64)
         if pose.shape != (3,) or not np.isfinite(pose).all():
             return f'non-finite values or an unusable quaternion ({pose.tolist()})'
@@ -237,9 +269,17 @@ class ConsistencyMonitor:
     def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
         """Take the back-end's full current estimate: register, move, measure, test.
 
-        `stamps` (M,) seconds and `poses` (M, 3). Poses with non-finite values or a duplicated
-        stamp are skipped with a warning in the summary. Raises ValueError when the arrays do
-        not have those shapes.
+        Parameters
+        ----------
+        stamps: (M,) the keyframes' scan stamps, seconds, in any order.
+        poses: (M, 3) their poses (x, y, yaw). Poses with non-finite values, beyond
+            max_pose_extent or with a duplicated stamp are skipped with a warning in the
+            summary.
+
+        Returns
+        -------
+        What the update did (the test runs at the next `evaluate`). Raises ValueError when the
+        arrays do not have those shapes.
         """
         stamps = np.asarray(stamps, dtype=np.float64)
         poses = np.asarray(poses, dtype=np.float64)
@@ -270,12 +310,22 @@ class ConsistencyMonitor:
         return self._apply_path(tuple(warnings))
 
     def refresh(self) -> UpdateSummary:
-        """Register late scans against the last trajectory (a no-op when nothing is pending)."""
+        """Register late scans against the last trajectory (a no-op when nothing is pending).
+
+        Returns
+        -------
+        What the update did.
+        """
         return self._apply_path(())
 
     def recompute(self) -> UpdateSummary:
         """Measure every pair again from scratch (the incremental caches are rebuilt; the
-        partner budget chooses again on the current poses)."""
+        partner budget chooses again on the current poses).
+
+        Returns
+        -------
+        What it did: every keyframe counted as moved, the pairs measured.
+        """
         start = time.perf_counter()
         self._reset_pairs()
         slots = np.arange(self.keyframe_count)
@@ -288,10 +338,14 @@ class ConsistencyMonitor:
     def set_constraints(self, rows: np.ndarray) -> None:
         """The pose-graph edges for DCS retuning, replacing the previous set.
 
-        Rows `[stamp_from, stamp_to, dx, dy, dtheta, I11, I12, I13, I22, I23, I33]` (stamps in
-        seconds, upper triangle of the information matrix). Raises ValueError on a wrong shape,
-        non-finite values, an edge from a stamp to itself, or an information matrix that is not
-        symmetric positive definite.
+        Parameters
+        ----------
+        rows: (E, 11) `[stamp_from, stamp_to, dx, dy, dtheta, I11, I12, I13, I22, I23, I33]`
+            (stamps in seconds, upper triangle of the information matrix).
+
+        Raises ValueError (and keeps the previous set) on a wrong shape, non-finite values, an
+        edge from a stamp to itself, or an information matrix that is not symmetric positive
+        definite.
         """
         rows = check_constraint_rows(rows)
         self._constraints = rows.copy()
@@ -306,7 +360,10 @@ class ConsistencyMonitor:
     def pose_graph(self) -> PoseGraph | None:
         """Keyframes (stamp order, first one fixed) and the constraints between them.
 
-        Constraint rows whose stamps match no keyframe are left out. None when there are fewer
+        Returns
+        -------
+        The PoseGraph of the keyframes at their current poses in stamp order, the first fixed;
+        constraint rows whose stamps match no keyframe are left out. None when there are fewer
         than two keyframes or no constraint connects two keyframes.
         """
         if self.keyframe_count < 2 or self._constraints.shape[0] == 0:

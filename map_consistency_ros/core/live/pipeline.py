@@ -94,6 +94,10 @@ class LivePipeline:
     def apply(self, record: Record) -> Applied:
         """Apply one input record (MonitorFeed.apply).
 
+        Parameters
+        ----------
+        record: one input record.
+
         Returns
         -------
         What it did: the update (None when the map did not change), its warnings, the reason
@@ -105,7 +109,12 @@ class LivePipeline:
         return applied
 
     def reset(self, reason: str) -> None:
-        """Forget every scan, keyframe, constraint and registration (a new SLAM session)."""
+        """Forget every scan, keyframe, constraint and registration (a new SLAM session).
+
+        Parameters
+        ----------
+        reason: why (the feed keeps it as `last_reset`).
+        """
         self.feed.reset(reason)
         self._registrations = RegistrationCache()
 

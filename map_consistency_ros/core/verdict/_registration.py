@@ -80,7 +80,13 @@ class Registrations:
     determined: np.ndarray  # (T,) bool: enough matches and a regular normal matrix
 
     def world_transforms(self) -> np.ndarray:
-        """(T, 3) the corrections as world transforms (x, y, theta): p -> R p + (x, y)."""
+        """The corrections as world transforms.
+
+        Returns
+        -------
+        (T, 3) world transforms (x, y, theta), p -> R p + (x, y): the same motions as the
+        corrections about `centroids`.
+        """
         theta = self.corrections[:, 2]
         cos, sin = np.cos(theta), np.sin(theta)
         cx, cy = self.centroids[:, 0], self.centroids[:, 1]
@@ -90,7 +96,17 @@ class Registrations:
 
 
 def surface_points(endpoints: np.ndarray, valid: np.ndarray) -> SurfacePoints:
-    """Valid end points (N, K, 2) / (N, K) with normals from their beam neighbours."""
+    """Valid end points with normals from their beam neighbours.
+
+    Parameters
+    ----------
+    endpoints: (N, K, 2) world end points of N scans of K beams, metres.
+    valid: (N, K) which beams are real returns.
+
+    Returns
+    -------
+    The SurfacePoints of the valid end points, scan by scan in beam order.
+    """
     valid = np.ascontiguousarray(valid, dtype=np.bool_)
     offsets = np.zeros(valid.shape[0] + 1, dtype=np.int64)
     np.cumsum(valid.sum(axis=1), out=offsets[1:])
@@ -153,7 +169,20 @@ def _thin(points: np.ndarray, normals: np.ndarray, cell: float, need_normal: boo
 
 @numba.njit(cache=True)
 def point_grid(points: np.ndarray, cell: float, margin: float):
-    """Counting-sort grid of `points`: origin, shape and per-cell start offsets into `items`."""
+    """Counting-sort grid of points, for `nearest_point`.
+
+    Parameters
+    ----------
+    points: (M, 2) points, metres; M >= 1.
+    cell: the side of a square cell, metres.
+    margin: the grid reaches this far beyond the points' bounding box on every side, metres.
+
+    Returns
+    -------
+    (x0, y0, nx, ny, starts, items): the grid's origin (its lowest corner), its cells along x
+    and y, per-cell start offsets (nx * ny + 1,) into `items` (cell (cx, cy) has key
+    cx * ny + cy), and `items` (M,), the point indices grouped by cell.
+    """
     x0 = points[:, 0].min() - margin
     y0 = points[:, 1].min() - margin
     nx = int((points[:, 0].max() + margin - x0) / cell) + 1
@@ -178,7 +207,19 @@ def point_grid(points: np.ndarray, cell: float, margin: float):
 @numba.njit(cache=True)
 def nearest_point(points: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell: float,
                   starts: np.ndarray, items: np.ndarray, px: float, py: float, gate: float) -> int:
-    """Index of the nearest point within `gate` of p, -1 where none."""
+    """The nearest point to p within a gate.
+
+    Parameters
+    ----------
+    points: (M, 2) the points the grid was built on.
+    x0, y0, nx, ny, cell, starts, items: the grid (point_grid) and its cell size.
+    px, py: the position p, metres.
+    gate: the largest distance of a match, metres; strictly closer points only.
+
+    Returns
+    -------
+    The index of the nearest point in `points`, -1 where none.
+    """
     # only the cells the gate's square touches: at fine gates one to four, not nine
     low_x = max(int(math.floor((px - gate - x0) / cell)), 0)
     high_x = min(int(math.floor((px + gate - x0) / cell)) + 1, nx)
@@ -248,11 +289,19 @@ def _normal_equations(residuals: np.ndarray, jacobians: np.ndarray, matched: int
 
 @numba.njit(cache=True)
 def symmetric_inverse(matrix: np.ndarray, out: np.ndarray) -> float:
-    """out = the inverse of the symmetric 3 x 3 `matrix` by its cofactors; returns the
-    determinant (out holds the adjugate when that is 0).
+    """The inverse of a symmetric 3 x 3 matrix by its cofactors.
 
     In closed form because numba's np.linalg goes through LAPACK: a copy and a call per 3 x 3,
-    and at the first call an import of all of scipy.linalg (0.3 s of a `check`).
+    and at the first call an import of all of scipy.linalg.
+
+    Parameters
+    ----------
+    matrix: (3, 3) symmetric (only its upper triangle is read).
+    out: (3, 3) float array that receives the inverse (the adjugate when the determinant is 0).
+
+    Returns
+    -------
+    The determinant.
     """
     a, b, c = matrix[0, 0], matrix[0, 1], matrix[0, 2]
     d, e, f = matrix[1, 1], matrix[1, 2], matrix[2, 2]
@@ -362,10 +411,20 @@ def _register_tasks(references: tuple, queries: tuple, reference_of_task: np.nda
 
 def register_submaps(surfaces: SurfacePoints, tasks: np.ndarray,
                      settings: RegistrationSettings | None = None) -> Registrations:
-    """Register query submaps onto reference submaps, one per row of `tasks` (T, 4).
+    """Register query submaps onto reference submaps, one per row of `tasks`.
 
-    A row (r0, r1, q0, q1) takes the scans r0:r1 of `surfaces` as the reference and q0:q1 as
-    the query. Raises ValueError for rows outside the scans or empty ranges.
+    Parameters
+    ----------
+    surfaces: the end points and normals of N scans (surface_points).
+    tasks: (T, 4) rows (r0, r1, q0, q1): the scans r0:r1 of `surfaces` are the reference,
+        q0:q1 the query.
+    settings: the ICP's settings; None for the defaults.
+
+    Returns
+    -------
+    The Registrations of the T tasks, in order (undetermined, with infinite covariance, where
+    a submap holds fewer than min_matches points). Raises ValueError for rows outside the
+    scans or empty ranges.
     """
     settings = settings or RegistrationSettings()
     tasks = np.ascontiguousarray(tasks, dtype=np.int64).reshape(-1, 4)

@@ -98,6 +98,12 @@ class ExplanationSettings(Settings):
         (0.1, 1000.0))
 
     def as_dict(self) -> dict:
+        """The settings as plain data.
+
+        Returns
+        -------
+        A dict of every field by name.
+        """
         return dict(self.__dict__)
 
 
@@ -163,11 +169,23 @@ class Assessment:
         return self.result.inconsistent if self.settings.strict else self.misaligned_scans
 
     def class_counts(self) -> dict[str, int]:
+        """How many explained pairs fell into each class.
+
+        Returns
+        -------
+        The count of each class of PAIR_CLASSES by its name, zeros included.
+        """
         counts = np.bincount(self.pair_classes, minlength=len(PAIR_CLASSES))
         return {name: int(counts[code]) for code, name in enumerate(PAIR_CLASSES)}
 
     def summary_line(self) -> str:
-        """e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14 changed places."""
+        """The verdict in one line of text.
+
+        Returns
+        -------
+        The line, e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14
+        changed places.
+        """
         verdict = 'CONSISTENT' if self.consistent else 'INCONSISTENT'
         places = len(self.changes)
         changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
@@ -256,6 +274,17 @@ class PointMoments:
 
     @classmethod
     def of(cls, scans: ScanSet) -> PointMoments:
+        """The moments of each scan's valid end points.
+
+        Parameters
+        ----------
+        scans: the N scans placed in the world.
+
+        Returns
+        -------
+        The PointMoments of the N scans (mean and mean square 0 for a scan without valid
+        points).
+        """
         valid = scans.valid
         count = valid.sum(axis=1)
         safe = np.maximum(count, 1)
@@ -265,7 +294,16 @@ class PointMoments:
         return cls(count, mean, np.where(valid, x * x + y * y, 0.0).sum(axis=1) / safe)
 
     def pooled(self, scans: np.ndarray) -> PointMoments:
-        """The moments of the points of `scans` taken together, as one set (1,)."""
+        """The moments of the points of some scans taken together.
+
+        Parameters
+        ----------
+        scans: indices of scans of these moments.
+
+        Returns
+        -------
+        PointMoments of one set (arrays of length 1).
+        """
         count = self.count[scans]
         weight = count / max(int(count.sum()), 1)
         return PointMoments(np.array([count.sum()]), (weight[:, None] * self.mean[scans]).sum(
@@ -273,9 +311,18 @@ class PointMoments:
 
     def displacement(self, transforms: np.ndarray, rows: np.ndarray | None = None
                      ) -> np.ndarray:
-        """(E,) root mean square distance the world transforms (E, 3) move the points of the
-        scans `rows` (E,) (all sets when None): the mean of |(R - I) p + t|^2 in closed form,
-        as (R - I)^T (R - I) = 4 sin^2(theta / 2) I."""
+        """The root mean square distance world transforms move the points of sets: the mean
+        of |(R - I) p + t|^2 in closed form, as (R - I)^T (R - I) = 4 sin^2(theta / 2) I.
+
+        Parameters
+        ----------
+        transforms: (E, 3) world transforms (x, y, theta).
+        rows: (E,) the set each transform moves; None: every set, one transform each.
+
+        Returns
+        -------
+        (E,) metres, 0 for a set without points.
+        """
         count, mean, square = ((self.count, self.mean, self.square) if rows is None else
                                (self.count[rows], self.mean[rows], self.square[rows]))
         theta, tx, ty = transforms[:, 2], transforms[:, 0], transforms[:, 1]
@@ -383,7 +430,22 @@ def agreeing_registrations(moments: PointMoments, rows: np.ndarray, pairs: np.nd
                            correction: np.ndarray, settings: ExplanationSettings) -> int:
     """Independent registrations (tasks) whose correction places the later scan's points within
     the tolerance (RMS) of where the region's correction places them: a loop-closure error
-    moves a stretch rigidly, so its submaps agree."""
+    moves a stretch rigidly, so its submaps agree.
+
+    Parameters
+    ----------
+    moments: the point moments of every scan (PointMoments.of).
+    rows: the region's rows of `pairs`, `transforms` and `task_of_pair`.
+    pairs: (E, 2) explained pairs (i, j), j the later scan.
+    transforms: (E, 3) the world transform of each pair's registration, moving j.
+    task_of_pair: (E,) the registration task of each pair.
+    correction: (3,) the region's world transform.
+    settings: the explanation's settings (misalignment_tolerance).
+
+    Returns
+    -------
+    The number of distinct tasks that agree.
+    """
     later = pairs[rows, 1]
     # |T_k p - C p| = |C^-1 T_k p - p|: C^-1 T_k moves the points as far from C's placement
     relative = se2.relative(correction, transforms[rows])
@@ -414,7 +476,17 @@ _CONSENSUS_CANDIDATES = 200
 
 
 def longest_run(scans: np.ndarray, gap: int) -> int:
-    """The most scans of sorted indices `scans` joined by steps of at most `gap`."""
+    """The longest run of scans joined by short steps.
+
+    Parameters
+    ----------
+    scans: sorted scan indices.
+    gap: the largest step between neighbours of one run.
+
+    Returns
+    -------
+    The most scans in one run; 0 for no scans.
+    """
     if scans.size == 0:
         return 0
     breaks = np.flatnonzero(np.diff(scans) > gap)
@@ -460,13 +532,24 @@ def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
 
 def corrections_confirmed(scans: ScanSet, result: ConsistencyResult, tasks: np.ndarray,
                           transforms: np.ndarray, settings: ExplanationSettings) -> np.ndarray:
-    """(T,) whether each registration's correction (world transforms (T, 3) of the query
-    submap) resolves at least `min_resolved_fraction` of the failing tested pairs between its
-    two submaps, net of the passing pairs it breaks.
+    """Whether each registration's correction resolves at least `min_resolved_fraction` of the
+    failing tested pairs between its two submaps, net of the passing pairs it breaks.
 
     A rigid error of the query submap makes most pairs between the two submaps fail, changes
     aside, and its correction resolves them. A correction that snapped onto a moved object or a
     person resolves the pairs that see it and breaks those that see the static walls.
+
+    Parameters
+    ----------
+    scans: the scans `result` was computed on.
+    result: the paper's test on them.
+    tasks: (T, 4) registration tasks (r0, r1, q0, q1): reference and query submaps.
+    transforms: (T, 3) each task's correction as a world transform of its query submap.
+    settings: the explanation's settings (min_resolved_fraction).
+
+    Returns
+    -------
+    (T,) bool; False for a task without failing pairs between its submaps.
     """
     rows, task_ids = _task_overlaps(result, tasks)
     pairs = result.pairs[rows]
@@ -589,7 +672,18 @@ def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> n
 
 
 def place_labels(points: np.ndarray, cell: float) -> np.ndarray:
-    """Labels (M,) of points (M, 2) joined through neighbouring cells of size `cell`."""
+    """Group points into places joined through neighbouring cells.
+
+    Parameters
+    ----------
+    points: (M, 2) points, metres; M >= 1.
+    cell: the side of a square cell, metres; points in one cell or in cells touching (the
+        eight neighbours) share a place.
+
+    Returns
+    -------
+    (M,) int64 labels, equal for the points of one place.
+    """
     cells = np.floor(points / cell).astype(np.int64)
     cells -= cells.min(axis=0) - 1  # every neighbour of a cell has non-negative coordinates
     width = int(cells[:, 1].max()) + 2
@@ -671,7 +765,19 @@ class RegistrationCache:
 
     def register(self, scans: ScanSet, tasks: np.ndarray,
                  settings: RegistrationSettings | None) -> Registrations:
-        """register_submaps of `tasks`, computing only those not registered before."""
+        """register_submaps of some tasks, computing only those not registered before.
+
+        Parameters
+        ----------
+        scans: the scans placed in the world; a task is known by its scans' poses and ranges.
+        tasks: (T, 4) registration tasks (r0, r1, q0, q1), as register_submaps.
+        settings: the ICP's settings; None for the defaults. The cache's keys do not hold
+            them: one cache serves one setting.
+
+        Returns
+        -------
+        The Registrations of the T tasks, in order.
+        """
         keys = self._keys(scans, tasks)
         missing = [index for index, key in enumerate(keys) if key not in self._entries]
         if missing:
@@ -703,8 +809,20 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     """Explain the failed pairs of `result` on the map `scans` and make the verdict.
 
     Only failed pairs that involve a scan flagged by the paper's test are explained: the others
-    cannot change the verdict. A map that passes the paper's test costs nothing here. A
-    `cache` kept across calls on a growing map skips the registrations that still hold.
+    cannot change the verdict. A map that passes the paper's test costs nothing here.
+
+    Parameters
+    ----------
+    scans: the N scans `result` was computed on, at their map poses.
+    result: the paper's test on them.
+    settings: the explanation's settings; None for the defaults.
+    registration: the ICP's settings; None for the defaults.
+    cache: registrations kept across calls on a growing map: those that still hold are not
+        computed again. None registers every task.
+
+    Returns
+    -------
+    The Assessment. Raises ValueError when `scans` and `result` differ in scan count.
     """
     settings = settings or ExplanationSettings()
     if scans.scan_count != result.scan_count:
@@ -761,17 +879,38 @@ def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,
               settings: ExplanationSettings | None = None,
               reference_scans: ScanSet | None = None,
               progress: Progress | None = None) -> Assessment:
-    """Both stages on scans placed in the map: the paper's test, then the explanation."""
+    """Both stages on scans placed in the map: the paper's test, then the explanation.
+
+    Parameters
+    ----------
+    scans, parameters, reference_scans, progress: as check_consistency.
+    settings: the explanation's settings; None for the defaults.
+
+    Returns
+    -------
+    The Assessment (its `result` the paper's test).
+    """
     result = check_consistency(scans, parameters, reference_scans, progress)
     return explain(scans, result, settings)
 
 
 def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int = 200,
                          min_depth: float = 0.0) -> np.ndarray:
-    """End points (M, 2) inside the other scan's polygon in the pairs behind the verdict: the
+    """End points inside the other scan's polygon in the pairs behind the verdict: the
     misaligned and unregistered pairs of flagged scans (strict: every failed pair of flagged
-    scans), the `max_pairs` with the largest statistic. A point counts when it lies deeper
-    than `min_depth` times the pair's scale."""
+    scans).
+
+    Parameters
+    ----------
+    scans: the scans the assessment was made on.
+    assessment: the verdict.
+    max_pairs: only the pairs with the largest statistic, this many.
+    min_depth: a point counts when it lies deeper than this many times the pair's scale.
+
+    Returns
+    -------
+    (M, 2) world end points, metres.
+    """
     result = assessment.result
     if assessment.settings.strict:
         return inconsistent_endpoints(scans, result, max_pairs, min_depth)

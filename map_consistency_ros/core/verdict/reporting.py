@@ -13,14 +13,32 @@ from map_consistency_ros.core.verdict.explanation import Assessment
 
 
 def scan_names(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:
-    """How the report names the scans: `scan_ids` (record positions, stamps), else indices."""
+    """How the report names the scans.
+
+    Parameters
+    ----------
+    result: the test's result on N scans.
+    scan_ids: (N,) the scans' names in the input (record positions, stamps); None: indices.
+
+    Returns
+    -------
+    (N,) `scan_ids` as an array, else 0..N-1.
+    """
     return np.arange(result.scan_count) if scan_ids is None else np.asarray(scan_ids)
 
 
 def result_report(result: ConsistencyResult, scan_ids: np.ndarray | None = None) -> dict:
     """The verdict, the figures and the per-scan decisions of a consistency result.
 
-    `scan_ids` name the scans in the input (record positions) where the test ran on a subset.
+    Parameters
+    ----------
+    result: the paper's test.
+    scan_ids: (N,) names of the scans in the input (record positions) where the test ran on a
+        subset; None names them by index.
+
+    Returns
+    -------
+    The report dict (numpy values; `to_json` makes it text).
     """
     ids = scan_names(result, scan_ids)
     return {
@@ -40,7 +58,17 @@ def result_report(result: ConsistencyResult, scan_ids: np.ndarray | None = None)
 
 def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None) -> dict:
     """Both stages: the verdict, each misaligned region and each changed place, on top of the
-    paper's test (result_report). The node's ~/report and the CLI's JSON share it."""
+    paper's test (result_report). The node's ~/report and the CLI's JSON share it.
+
+    Parameters
+    ----------
+    assessment: the verdict of both stages.
+    scan_ids: as result_report.
+
+    Returns
+    -------
+    The report dict (numpy values; `to_json` makes it text).
+    """
     ids = scan_names(assessment.result, scan_ids)
     content = result_report(assessment.result, scan_ids)
     content.update({
@@ -74,7 +102,18 @@ def _region(region, ids: np.ndarray) -> dict:
 
 
 def plain(value):
-    """`value` with numpy arrays and scalars as lists and numbers, non-finite floats as None."""
+    """A value as plain Python data for JSON.
+
+    Parameters
+    ----------
+    value: a report, or any part of one: dicts, lists, tuples, numpy arrays and scalars,
+        floats, paths, other values.
+
+    Returns
+    -------
+    `value` with dict keys as strings, tuples and numpy arrays as lists, numpy scalars as
+    numbers, paths as strings and non-finite floats as None; other values as they are.
+    """
     if isinstance(value, dict):
         return {str(key): plain(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
@@ -91,6 +130,16 @@ def plain(value):
 
 
 def to_json(report, indent: int | None = None) -> str:
-    """`report` as strict JSON text: `plain` values, and a ValueError rather than a NaN or an
-    Infinity that slipped past it (no JSON parser but Python's would read the report)."""
+    """A report as strict JSON text.
+
+    Parameters
+    ----------
+    report: the report (`plain` makes its values plain).
+    indent: json.dumps' indent; None for one line.
+
+    Returns
+    -------
+    The text; a ValueError rather than a NaN or an Infinity that slipped past `plain` (no JSON
+    parser but Python's would read the report).
+    """
     return json.dumps(plain(report), indent=indent, allow_nan=False)
