@@ -175,7 +175,13 @@ class ReplayStats:
 
 class Replay:
     """Feeds one bag's records through the node's live pipeline (core/live/pipeline.py), in
-    log order."""
+    log order.
+
+    Parameters
+    ----------
+    bag: the open bag.
+    pipeline: the live pipeline that takes its records (`make_pipeline`).
+    """
 
     def __init__(self, bag: BagReader, pipeline: LivePipeline) -> None:
         self.bag = bag
