@@ -70,6 +70,13 @@ _OWN = ('inputs', 'workers', 'scheduler', 'csv', 'json', 'html', 'quiet', 'param
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `batch`: the inputs, how to run them, the outputs, and the options
+    of `check` and `replay` that apply to every input taking them.
+
+    Parameters
+    ----------
+    parser: the parser of the `batch` subcommand.
+    """
     parser.add_argument('inputs', nargs='+', metavar='INPUT',
                         help='CARMEN logs, g2o graphs with ROBOTLASER1 lines, ROS 1 .bag files, '
                              'rosbag2 folders; or folders / glob patterns holding them')
@@ -127,9 +134,19 @@ def _in_folder(folder: Path) -> list[tuple[str, str]]:
 
 
 def find_inputs(arguments: list[str]) -> list[tuple[str, str]]:
-    """(path, kind) of every input named by files, folders and glob patterns, in the order
-    given (folders and patterns sorted), each once. A name that matches nothing is kept with
-    kind None: it is listed as a bad input."""
+    """Every input named by files, folders and glob patterns, each once.
+
+    Parameters
+    ----------
+    arguments: the INPUT arguments as given: files (read as CARMEN logs unless their suffix
+        names another kind), folders (searched recursively) and glob patterns.
+
+    Returns
+    -------
+    (path, kind) per input, in the order given (folders and patterns sorted); kind is
+    CARMEN, GRAPH, ROS1_BAG or ROS2_BAG. A name that matches nothing is kept with kind None:
+    it is listed as a bad input.
+    """
     found: list[tuple[str, str | None]] = []
     for argument in arguments:
         path = Path(argument)
@@ -160,11 +177,25 @@ def find_inputs(arguments: list[str]) -> list[tuple[str, str]]:
 
 def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
                 figures: bool) -> dict:
-    """One row of the table: `item` (path, kind) judged through `check` or `replay` with the
-    options `given` on the command line over the parameter file's `file_values`. With
-    `figures`, the row also carries the map figure, its thumbnail and the JSON report as bytes
-    under 'files' (the workers need not share a file system with the caller). Runs in a worker:
-    every exception becomes the row's error."""
+    """One row of the table: one input judged through `check` or `replay`. Runs in a worker:
+    every exception becomes the row's error.
+
+    Parameters
+    ----------
+    item: (path, kind) of `find_inputs`; kind None for a name that matched nothing.
+    given: the options given on the command line that check / replay take (`_given`); they
+        override `file_values`.
+    file_values: the parameter file's values ({} without --params-file); logs and graphs
+        take only those that mean the same for `check`.
+    figures: the row also carries the map figure, its thumbnail and the JSON report as bytes
+        under 'files' (the workers need not share a file system with the caller).
+
+    Returns
+    -------
+    The row: a value per name of COLUMNS, exit_code and verdict being those `check` /
+    `replay` would give (EXIT_INTERNAL_ERROR for an unexpected exception), and with
+    `figures` the 'files' of a judged input.
+    """
     path, kind = item
     row = {'input': path, 'kind': kind or 'missing', 'scans': None, 'summary_line': '',
            'regions': [], 'changed_places': None, 'error': None}
@@ -281,6 +312,19 @@ def _given(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Judge every input, print the table, and write --csv, --json and --html when asked.
+
+    Parameters
+    ----------
+    args: the parsed `batch` options.
+
+    Returns
+    -------
+    The exit code, the worst over the inputs: EXIT_INTERNAL_ERROR (3) when a job failed
+    unexpectedly, else EXIT_BAD_INPUT (2) when an input is bad, else EXIT_INCONSISTENT (1)
+    when a map is inconsistent, else EXIT_CONSISTENT (0). InputError (exit 2 through `main`)
+    for a bad --workers or parameter file, or when the inputs hold no log, graph or bag.
+    """
     if args.workers is not None and args.workers < 1:
         raise InputError('options', f'--workers must be at least 1, got {args.workers}')
     file_values = {}
@@ -330,7 +374,17 @@ def _regions_text(row: dict) -> str:
 
 
 def format_table(rows: list[dict]) -> str:
-    """The table for the terminal: verdict, runtime and input, then the summary or error."""
+    """The table for the terminal: verdict, runtime and input, then the summary or error.
+
+    Parameters
+    ----------
+    rows: the rows of `judge_input`.
+
+    Returns
+    -------
+    The text: a line per row, and below it an indented line with its error or summary line
+    when it has one.
+    """
     lines = []
     for row in rows:
         runtime = row['runtime_seconds']
@@ -343,7 +397,13 @@ def format_table(rows: list[dict]) -> str:
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
-    """The table as CSV, regions as one text cell ('; ' between regions)."""
+    """Write the table as CSV, the regions as one text cell ('; ' between regions).
+
+    Parameters
+    ----------
+    path: the CSV file; its folder is created.
+    rows: the rows of `judge_input`, one CSV row each, columns COLUMNS (None as '').
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, 'w', newline='') as stream:
         writer = csv.writer(stream)
@@ -355,7 +415,13 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def write_table_json(path: Path, rows: list[dict]) -> None:
-    """The table as JSON: {'maps': [row, ...]} with the columns of COLUMNS."""
+    """Write the table as JSON: {'maps': [row, ...]} with the columns of COLUMNS.
+
+    Parameters
+    ----------
+    path: the JSON file; its folder is created.
+    rows: the rows of `judge_input`.
+    """
     report.write_json(path, {'maps': [{name: row[name] for name in COLUMNS} for row in rows]})
 
 
@@ -365,7 +431,20 @@ def _slug(index: int, path: str) -> str:
 
 
 def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path:
-    """DIR/index.html, DIR/maps/* (figure, thumbnail, report per map), DIR/batch.csv/.json."""
+    """Write DIR/index.html, DIR/maps/* (figure, thumbnail, report per map) and
+    DIR/batch.csv/.json.
+
+    Parameters
+    ----------
+    folder: DIR; created if missing.
+    rows: the rows of `judge_input`, without their 'files'.
+    files: per row, the 'files' it carried (figure, thumbnail and report as bytes); None for
+        an input that was not judged: its row has no picture and no links.
+
+    Returns
+    -------
+    The path of DIR/index.html.
+    """
     maps = folder / 'maps'
     maps.mkdir(parents=True, exist_ok=True)
     write_csv(folder / 'batch.csv', rows)

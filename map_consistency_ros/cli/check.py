@@ -36,6 +36,13 @@ EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `check`: the input, --every, the sensor, test and verdict options
+    and the outputs.
+
+    Parameters
+    ----------
+    parser: the parser of the `check` subcommand.
+    """
     parser.add_argument('log', type=Path,
                         help='CARMEN log file (plain text or gzip), or a .g2o graph with '
                              'ROBOTLASER1 lines')
@@ -49,6 +56,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_output_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the output options (--report, --plot, --pairs-csv, --explain, --quiet) that
+    `write_outputs` serves; replay takes them too.
+
+    Parameters
+    ----------
+    parser: the parser to add them to, as the group 'output'.
+    """
     group = parser.add_argument_group('output')
     group.add_argument('--report', type=Path, metavar='JSON',
                        help='write the verdict, figures, sensor model and parameters as JSON')
@@ -63,11 +77,18 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
                ) -> tuple[carmen.CarmenLog, np.ndarray, ScanSet]:
-    """Read the log (or graph) and place the viewpoints among every `--every`-th scan; bad
-    option values become InputError.
+    """Read the log (or graph) and place the viewpoints among every `--every`-th scan.
 
-    Returns the laser records, the names of the scans tested (record positions, or vertex ids
-    of a graph), and the scans.
+    Parameters
+    ----------
+    args: parsed `check` options: log, every, max_range, range_min and fov.
+    parameters: the test's parameters; their viewpoint_spacing and viewpoint_turn pick the
+        viewpoints.
+
+    Returns
+    -------
+    The laser records, the names (S,) of the S scans tested (record positions, or vertex ids
+    of a graph), and those scans. Bad option values become InputError.
     """
     if args.every < 1:
         raise InputError('options', f'--every must be at least 1, got {args.every}')
@@ -96,13 +117,32 @@ def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
 
 
 def is_graph(path: Path) -> bool:
-    """Whether `check` reads `path` as a g2o graph rather than a CARMEN log."""
+    """Whether `check` reads `path` as a g2o graph rather than a CARMEN log.
+
+    Parameters
+    ----------
+    path: the input file.
+
+    Returns
+    -------
+    True for the suffix .g2o (in any case).
+    """
     return Path(path).suffix.lower() == '.g2o'
 
 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
                   details: dict, scan_ids: np.ndarray | None = None) -> None:
-    """The report, figure and pairs CSV the user asked for."""
+    """Write the report, figures and pairs CSV the user asked for.
+
+    Parameters
+    ----------
+    args: parsed options with report, plot, pairs_csv and explain: paths, None for an
+        output not asked for.
+    scans: the S scans judged, at the poses judged.
+    assessment: both stages' verdict on `scans`.
+    details: the report's fields beside the verdict; its 'source' titles the map figure.
+    scan_ids: (S,) names of the scans in the report and the CSV; None: their indices.
+    """
     if args.plot or args.explain:
         # matplotlib costs half a second of start-up: only the runs that draw pay it.
         from map_consistency_ros.cli import plots
@@ -119,7 +159,17 @@ def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessme
 
 
 def verdict_settings(args: argparse.Namespace):
-    """The paper's parameters and the explanation settings; bad values become InputError."""
+    """The paper's parameters and the explanation settings of the parsed options.
+
+    Parameters
+    ----------
+    args: parsed options with the test and verdict options (`options.add_test_arguments`,
+        `options.add_verdict_arguments`); those not given keep their defaults.
+
+    Returns
+    -------
+    (ConsistencyParameters, ExplanationSettings); bad values become InputError.
+    """
     try:
         config = options.configuration(args, ('consistency', 'explanation'))
     except ValueError as error:
@@ -139,12 +189,23 @@ class Judgement:
 
     @property
     def consistent(self) -> bool:
+        """Whether both stages find the map consistent."""
         return self.assessment.consistent
 
 
 def judge(args: argparse.Namespace) -> Judgement:
     """Read the input named by parsed `check` options and judge its map (the one code path
-    of `check` and of `batch` for logs and graphs)."""
+    of `check` and of `batch` for logs and graphs).
+
+    Parameters
+    ----------
+    args: parsed `check` options (--quiet: no progress bar).
+
+    Returns
+    -------
+    The Judgement: both stages' verdict, the scans and their names, the report's details and
+    the seconds the test took. InputError for a bad input or option value.
+    """
     parameters, explanation = verdict_settings(args)
     log, selected, scans = load_scans(args, parameters)
     started = time.perf_counter()
@@ -169,6 +230,17 @@ def judge(args: argparse.Namespace) -> Judgement:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Judge the input, print the summary and write the outputs asked for.
+
+    Parameters
+    ----------
+    args: parsed `check` options.
+
+    Returns
+    -------
+    The exit code: EXIT_CONSISTENT (0) for a consistent map, EXIT_INCONSISTENT (1) for an
+    inconsistent one. Bad input raises InputError, which `main` turns into exit code 2.
+    """
     judgement = judge(args)
     print(report.format_summary(judgement.assessment, str(args.log), judgement.scan_ids))
     print(f'  viewpoints            {judgement.scan_ids.size} of '

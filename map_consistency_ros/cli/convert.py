@@ -46,6 +46,13 @@ _TRAJECTORY_DELAY = 2e-6
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `convert`: the input, the bag to create, its storage, the scans'
+    geometry, the stamps, the edges and the topics.
+
+    Parameters
+    ----------
+    parser: the parser of the `convert` subcommand.
+    """
     parser.add_argument('input', type=Path,
                         help='CARMEN log (plain text or gzip), or a .g2o graph with laser data')
     parser.add_argument('output', type=Path, help='rosbag2 folder to create')
@@ -79,8 +86,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def scan_model(log: carmen.CarmenLog, fov: float | None, range_max: float | None) -> SensorModel:
-    """The LaserScan geometry: the log's beam angles (`fov` in radians overrides them),
-    range_max as the sensor states it."""
+    """The LaserScan geometry: the log's beam angles, range_max as the sensor states it.
+
+    Parameters
+    ----------
+    log: the laser records.
+    fov: field of view in radians, overriding the log's beam angles; None: the log's own
+        (carmen.sensor_model).
+    range_max: range_max in metres where the log does not state the sensor maximum; None:
+        the largest finite reading (0 without any).
+
+    Returns
+    -------
+    The SensorModel of the scans written (range_min 0); ValueError for a bad `fov`.
+    """
     stated = carmen.stated_max_range(log)
     maximum = stated if stated else range_max
     if maximum is None:
@@ -99,9 +118,19 @@ def record_stamps(log: carmen.CarmenLog, count: int, rate: float | None = None,
                   fix: bool = False) -> tuple[np.ndarray, int]:
     """Strictly increasing stamps of the first `count` records and how many were fixed.
 
-    Logger timestamps by default; index / rate with a rate; with `fix`, a record whose
-    timestamp does not increase is stamped 10 ms after its predecessor. Otherwise such a
-    record is an InputError, as scans need distinct stamps in file order.
+    Scans need distinct stamps in file order: without `fix`, a record whose timestamp does not
+    increase is an InputError.
+
+    Parameters
+    ----------
+    log: the laser records; their logger timestamps are the stamps by default.
+    count: how many records, from the first, are stamped.
+    rate: in Hz: record i is stamped i / rate seconds instead; None: the logger timestamps.
+    fix: a record whose timestamp does not increase is stamped 10 ms after its predecessor.
+
+    Returns
+    -------
+    (count,) stamps in seconds, and how many records were restamped (0 with a `rate`).
     """
     if rate is not None:
         return np.arange(count) / rate, 0
@@ -137,7 +166,19 @@ class Keyframes:
 
 
 def log_keyframes(path: Path, sigmas: tuple) -> Keyframes:
-    """A CARMEN log's records, with odometry edges between consecutive records."""
+    """A CARMEN log's records, with odometry edges between consecutive records.
+
+    Parameters
+    ----------
+    path: the CARMEN log (plain text or gzip).
+    sigmas: standard deviations (x, y in metres, theta in radians) of every odometry edge;
+        its information matrix is diagonal, their inverse squares.
+
+    Returns
+    -------
+    The Keyframes: every record, and an edge (i, i + 1) per step between the robot poses of
+    consecutive records.
+    """
     log = carmen.read_carmen_log(path)
     steps = se2.relative(log.robot_poses[:-1], log.robot_poses[1:])
     upper = np.zeros((steps.shape[0], 6))
@@ -148,7 +189,18 @@ def log_keyframes(path: Path, sigmas: tuple) -> Keyframes:
 
 
 def graph_keyframes(path: Path) -> Keyframes:
-    """A g2o graph's vertices (each with one scan) in index order, and its edges."""
+    """A g2o graph's vertices (each with one scan) in index order, and its edges.
+
+    Parameters
+    ----------
+    path: a .g2o file whose every vertex carries one ROBOTLASER1 scan.
+
+    Returns
+    -------
+    The Keyframes: a scan per vertex at the vertex pose composed with the laser offset, with
+    the timestamp and line number of its ROBOTLASER1 record, and the graph's edges.
+    InputError without exactly one scan per vertex.
+    """
     content = g2o.read_g2o(path)
     ranges = content.scan_ranges()
     laser, graph = content.laser, content.graph
@@ -166,7 +218,19 @@ def graph_keyframes(path: Path) -> Keyframes:
 def edge_rows(keyframes: Keyframes, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                   np.ndarray]:
     """Rows of the edges among the first len(stamps) keyframes, in the order they become
-    known (when their later keyframe arrives): (rows (E, 11), known_at (E,), loop (E,))."""
+    known (when their later keyframe arrives).
+
+    Parameters
+    ----------
+    keyframes: the keyframes and all their edges.
+    stamps: (K,) stamps of the first K keyframes, those written.
+
+    Returns
+    -------
+    rows (E, 11): stamp_from stamp_to dx dy dtheta I11 I12 I13 I22 I23 I33, as /constraints
+        carries them; known_at (E,): the keyframe whose arrival makes each edge known;
+        loop (E,): whether it is a loop closure (between keyframes that are not consecutive).
+    """
     count = stamps.size
     inside = (keyframes.edge_from < count) & (keyframes.edge_to < count)
     first, second = keyframes.edge_from[inside], keyframes.edge_to[inside]
@@ -177,7 +241,12 @@ def edge_rows(keyframes: Keyframes, stamps: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def check_options(args: argparse.Namespace) -> None:
-    """Refuse bad option values before any file is read."""
+    """Refuse bad option values before any file is read.
+
+    Parameters
+    ----------
+    args: parsed `convert` options; InputError names the first bad value.
+    """
     checks = (
         (args.limit is None or args.limit >= 1, f'--limit must be at least 1, got {args.limit}'),
         (args.constraints_every >= 1,
@@ -194,6 +263,18 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Write the bag: per keyframe its scan and the trajectory so far, and the edges known
+    every --constraints-every keyframes, after each loop closure and after the last.
+
+    Parameters
+    ----------
+    args: parsed `convert` options.
+
+    Returns
+    -------
+    The exit code 0: the bag was written. Bad options or input raise InputError, which `main`
+    turns into exit code 2.
+    """
     check_options(args)
     topics = BagTopics(scan=args.scan_topic, poses=args.trajectory_topic,
                        constraints=args.constraints_topic)

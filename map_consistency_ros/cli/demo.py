@@ -34,11 +34,22 @@ WRONG_LOOP = ((30, 260), (0.6, 0.0, 4.0))
 
 
 def demo_bag_path() -> Path:
-    """Path of the bundled demo bag inside the installed package."""
+    """The demo bag bundled with the package.
+
+    Returns
+    -------
+    Its path inside the installed package (map_consistency_ros/data/intel_demo.mcap).
+    """
     return Path(str(resources.files('map_consistency_ros') / 'data' / DEMO_BAG))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `demo`: --output and --quiet.
+
+    Parameters
+    ----------
+    parser: the parser of the `demo` subcommand.
+    """
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
                         help='folder for the report and figures (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
@@ -46,9 +57,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def with_wrong_loop_closure(graph: PoseGraph, keyframes: tuple[int, int],
                             error: tuple[float, float, float]) -> PoseGraph:
-    """`graph` plus one loop closure between `keyframes` whose measurement is their current
-    relative pose composed with `error` (dx, dy metres, dtheta degrees), weighted like the
-    graph's first edge."""
+    """`graph` plus one wrong loop closure, weighted like the graph's first edge.
+
+    Parameters
+    ----------
+    graph: the pose graph.
+    keyframes: (from, to) vertices the loop closure joins.
+    error: (dx, dy in metres, dtheta in degrees) composed with their current relative pose:
+        the loop closure's measurement.
+
+    Returns
+    -------
+    A new PoseGraph: the same poses and fixed vertices, the wrong edge after the others.
+    """
     start, end = keyframes
     true = se2.relative(graph.poses[start], graph.poses[end])
     wrong = se2.compose(true, np.array([error[0], error[1], math.radians(error[2])]))
@@ -60,7 +81,20 @@ def with_wrong_loop_closure(graph: PoseGraph, keyframes: tuple[int, int],
 
 
 def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) -> int:
-    """Close the wrong loop, give the monitor the optimized estimate, report its verdict."""
+    """Close the wrong loop, give the monitor the optimized estimate, report its verdict.
+
+    Parameters
+    ----------
+    monitor: the monitor after the demo bag's replay, holding its pose graph; it takes the
+        optimized trajectory as the back-end's next estimate.
+    out: the --output folder; the report and map figure go to out/wrong_loop_closure/.
+    args: the parsed options of the demo's replay, whose verdict settings explain the map.
+
+    Returns
+    -------
+    The exit code of the verdict: EXIT_CONSISTENT (0), or EXIT_INCONSISTENT (1), the one
+    expected. RuntimeError when the bag carries no constraints.
+    """
     graph = monitor.pose_graph()
     if graph is None:
         raise RuntimeError('the demo bag carries no constraints')
@@ -85,7 +119,16 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
 
 
 def run(args: argparse.Namespace) -> int:
-    """Both sides; exits 0 when the corrected map passes and the broken one fails."""
+    """Both sides: replay the demo bag, then break its map (see the module docstring).
+
+    Parameters
+    ----------
+    args: parsed `demo` options.
+
+    Returns
+    -------
+    The exit code: 0 when the corrected map passes and the broken one fails, else 1.
+    """
     out = args.output
     arguments = ['replay', str(demo_bag_path()), '--report', str(out / 'report.json'),
                  '--plot', str(out / 'map.png'), '--stats-plot', str(out / 'psi.png'),

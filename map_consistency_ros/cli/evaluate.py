@@ -62,6 +62,13 @@ TARGET = 0.95  # the issue's bar: recall and specificity both at least this
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `evaluate`: the suite, the sweep, the whole logs, the density suite
+    and the outputs.
+
+    Parameters
+    ----------
+    parser: the parser of the `evaluate` subcommand.
+    """
     defaults = SuiteParameters()
     suite = parser.add_argument_group('suite')
     suite.add_argument('--suite', choices=('paper', 'density', 'real-slam'), default='paper',
@@ -170,7 +177,17 @@ def _balanced(rows: np.ndarray, specificity: int, recall: int) -> np.ndarray:
 
 def plot_frontiers(path: Path, ours: np.ndarray, baseline: np.ndarray, two_stage: np.ndarray,
                    title: str) -> None:
-    """Specificity / recall of every setting and the Pareto frontiers, as the paper's Fig. 3."""
+    """Specificity / recall of every setting and the Pareto frontiers, as the paper's Fig. 3.
+
+    Parameters
+    ----------
+    path: the PNG to write.
+    ours: rows (alpha, binomial_alpha, local_alpha, flag_window, specificity, recall) of
+        runner.sweep_ours.
+    baseline: rows (quantile, threshold, specificity, recall) of runner.sweep_baseline.
+    two_stage: rows (alpha, tolerance, specificity, recall) of runner.sweep_two_stage.
+    title: the figure's title.
+    """
     import matplotlib.pyplot as plt  # here, after plots chose the non-interactive backend
     figure, ax = plt.subplots(figsize=(5.0, 4.6))
     for rows, columns, colour, label in ((baseline, slice(2, 4), 'tab:blue', 'Hähnel et al.'),
@@ -253,7 +270,21 @@ def _runtime_lines(rows: list[runner.RuntimeRow]) -> list[str]:
 def false_alarm_lines(maps: list[SuiteMap], flagged: np.ndarray, parameters: ConsistencyParameters,
                       max_range: float | None, figure: Path) -> list[str]:
     """The consistent maps the test flags at `parameters`: their worst pairs, and a map figure
-    of the one with the strongest conflict."""
+    of the one with the strongest conflict.
+
+    Parameters
+    ----------
+    maps: the suite's maps.
+    flagged: (M,) bool per map: the test at `parameters` flags it.
+    parameters: the test's setting judged.
+    max_range: the usable range in metres; None: the default of carmen.sensor_model.
+    figure: the PNG of the map with the strongest conflict; removed when no map is flagged.
+
+    Returns
+    -------
+    Markdown lines: a table of the flagged consistent maps and the figure, or one line saying
+    that no consistent map is flagged.
+    """
     rows, worst = [], None
     for suite_map, verdict in zip(maps, flagged):
         if suite_map.inconsistent or not verdict:
@@ -278,7 +309,18 @@ def false_alarm_lines(maps: list[SuiteMap], flagged: np.ndarray, parameters: Con
 
 
 def missed_lines(maps: list[SuiteMap], ours: np.ndarray, theirs: np.ndarray) -> list[str]:
-    """The broken maps our test passes, with how they were broken and the baseline's verdict."""
+    """The broken maps our test passes, with how they were broken and the baseline's verdict.
+
+    Parameters
+    ----------
+    maps: the suite's maps.
+    ours: (M,) bool per map: our test flags it.
+    theirs: (M,) bool per map: the baseline flags it.
+
+    Returns
+    -------
+    Markdown lines: a table of those maps, or one line when every broken map is flagged.
+    """
     rows = [[item.name, item.description, 'flagged' if their_verdict else 'passed']
             for item, our_verdict, their_verdict in zip(maps, ours, theirs)
             if item.inconsistent and not our_verdict]
@@ -289,7 +331,18 @@ def missed_lines(maps: list[SuiteMap], ours: np.ndarray, theirs: np.ndarray) -> 
 
 def summary_lines(measured: list[runner.MeasuredMap], ours: np.ndarray,
                   baseline: np.ndarray) -> list[str]:
-    """The comparison in a few lines: frontiers, dominance, the 0.95 / 0.95 bar."""
+    """The comparison in a few lines: frontiers, dominance, the 0.95 / 0.95 bar.
+
+    Parameters
+    ----------
+    measured: the measured maps (runner.measure_suite).
+    ours: rows of runner.sweep_ours over them.
+    baseline: rows of runner.sweep_baseline over them.
+
+    Returns
+    -------
+    Plain lines: the write-up lists them, the command prints them.
+    """
     our_front = _frontier(ours, slice(4, 6))
     their_front = _frontier(baseline, slice(2, 4))
     consistent = sum(not item.inconsistent for item in measured)
@@ -313,7 +366,17 @@ def summary_lines(measured: list[runner.MeasuredMap], ours: np.ndarray,
 
 
 def two_stage_lines(two_stage: np.ndarray) -> list[str]:
-    """The two-stage verdict on the parts suite: its frontier and its default setting."""
+    """The two-stage verdict on the parts suite: its frontier and its default setting.
+
+    Parameters
+    ----------
+    two_stage: rows (alpha, tolerance, specificity, recall) of runner.sweep_two_stage.
+
+    Returns
+    -------
+    Plain lines: the frontier's area and best recall, then the result at the defaults when
+    the sweep holds that setting.
+    """
     front = two_stage[metrics.pareto_frontier(two_stage[:, 2:4])]
     defaults = (ConsistencyParameters().alpha, ExplanationSettings().misalignment_tolerance)
     at_default = two_stage[(two_stage[:, 0] == defaults[0]) & (two_stage[:, 1] == defaults[1])]
@@ -333,7 +396,21 @@ def _verdict(consistent: bool) -> str:
 
 def whole_log_lines(results: list[whole_logs.WholeLogResult], tolerance: float,
                     figures: Path, data_maps: list[whole_logs.WholeLogMap]) -> list[str]:
-    """The whole-log suite at default settings: every map, the three detectors, the errors."""
+    """The whole-log suite at default settings: every map, the three detectors, the errors.
+
+    Parameters
+    ----------
+    results: whole_logs.judge_all's result per map.
+    tolerance: the misalignment tolerance in metres: a map whose observable displacement
+        exceeds it is labelled inconsistent.
+    figures: the folder of the figures of the maps the two-stage verdict gets wrong.
+    data_maps: the maps of `results`, in the same order (whole_logs.build).
+
+    Returns
+    -------
+    Markdown lines: the detectors' specificity and recall, a table of every map, and a
+    figure of each map the two-stage verdict gets wrong.
+    """
     truth = np.array([item.displacement > tolerance for item in results])
     ours = np.array([not item.consistent for item in results])
     paper = np.array([not item.paper_consistent for item in results])
@@ -384,7 +461,21 @@ def write_doc(args: argparse.Namespace, maps: list[SuiteMap], measured: list[run
               ours: np.ndarray, baseline: np.ndarray, two_stage: np.ndarray,
               whole: tuple | None, runtimes: list[runner.RuntimeRow],
               figure: Path, elapsed: float, commit: str) -> None:
-    """docs/evaluation.md: everything below is computed by this run."""
+    """Write the write-up --doc (docs/evaluation.md): everything in it is computed by this run.
+
+    Parameters
+    ----------
+    args: parsed `evaluate` options (doc, seed, part_size, datasets, cell_size, max_range).
+    maps: the suite's maps.
+    measured: their measurements (runner.measure_suite), in the same order.
+    ours, baseline, two_stage: rows of runner.sweep_ours, sweep_baseline and
+        sweep_two_stage, as `plot_frontiers` takes them.
+    whole: (results, maps) of the whole-log suite; None when it was skipped.
+    runtimes: the rows of the runtime table; empty when it was skipped.
+    figure: the Pareto figure, in the folder of figures beside --doc.
+    elapsed: seconds the whole run took.
+    commit: the commit evaluated (`_commit`).
+    """
     our_front = _frontier(ours, slice(4, 6))
     their_front = _frontier(baseline, slice(2, 4))
     truth = runner.labels(measured)
@@ -529,7 +620,16 @@ _OTHER_SUITES = ('Two more suites have pages of their own: the same maps at seve
 
 def run_density(args: argparse.Namespace) -> int:
     """The density suite: the table goes to --doc (when left at its default, to
-    docs/density.md) and the rows to --json."""
+    docs/density.md) and the rows to --json.
+
+    Parameters
+    ----------
+    args: parsed `evaluate` options with --suite density.
+
+    Returns
+    -------
+    The exit code 0; InputError when no case matches the options.
+    """
     if args.build_native:
         built = density.build_native(args.data, args.checkout / density.LOGS['intel-native'])
         print(json.dumps(built))
@@ -544,7 +644,16 @@ def run_density(args: argparse.Namespace) -> int:
 
 def run_real_slam(args: argparse.Namespace) -> int:
     """The real-SLAM suite: the table and score go to docs/real_slam.md (or --doc), the rows to
-    docs/figures/real_slam.json."""
+    figures/real_slam.json beside it.
+
+    Parameters
+    ----------
+    args: parsed `evaluate` options with --suite real-slam.
+
+    Returns
+    -------
+    The exit code 0.
+    """
     truth = real_slam.labels(density.CHECKOUT)
     rows = real_slam.run_suite(density.CHECKOUT, Path(tempfile.mkdtemp()), timeout=3600.0)
     doc = Path('docs/real_slam.md') if args.doc == Path('docs/evaluation.md') else args.doc
@@ -561,6 +670,17 @@ def run_real_slam(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Build the suite, measure and sweep it, write the write-up, its figures and
+    figures/evaluation.json, and print the summary (--suite density / real-slam: that suite).
+
+    Parameters
+    ----------
+    args: parsed `evaluate` options.
+
+    Returns
+    -------
+    The exit code 0: the evaluation measures, it gives no verdict. InputError for bad options.
+    """
     if args.suite == 'density':
         return run_density(args)
     if args.suite == 'real-slam':

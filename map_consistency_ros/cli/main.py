@@ -45,7 +45,18 @@ def _version() -> str:
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser of every subcommand, or only `command`'s options with the others listed: their
-    modules (numpy, numba, scipy, matplotlib, rosbags behind them) are then not imported."""
+    modules (numpy, numba, scipy, matplotlib, rosbags behind them) are then not imported.
+
+    Parameters
+    ----------
+    command: the subcommand whose options are needed; None: every subcommand's; a name that
+        is none ('': no subcommand given): only the overview.
+
+    Returns
+    -------
+    The parser of `map-consistency`. A parsed subcommand sets `run`, its module's run, and
+    `inputs`, the names of its positional arguments.
+    """
     parser = argparse.ArgumentParser(
         prog='map-consistency',
         description=__doc__.split('\n\n')[0],
@@ -105,6 +116,19 @@ def _command_of(argv: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The `map-consistency` command: parse the arguments and run the subcommand.
+
+    Parameters
+    ----------
+    argv: the arguments after the program name; None: sys.argv[1:].
+
+    Returns
+    -------
+    The exit code: the subcommand's (0 consistent or success, 1 inconsistent); 2 for bad
+    input (InputError, OSError: one line on stderr; argparse exits 2 itself on bad options);
+    3 for an internal error (one line on stderr naming the input, the traceback with
+    --debug); 130 when interrupted.
+    """
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(_command_of(argv)).parse_args(argv)
     _spare_numba_the_scipy_linalg_import()

@@ -18,6 +18,16 @@ from map_consistency_ros.core.verdict import ExplanationSettings
 
 
 def option_name(name: str) -> str:
+    """The command-line option of a parameter.
+
+    Parameters
+    ----------
+    name: the parameter's name (snake_case).
+
+    Returns
+    -------
+    '--' and the name with dashes for underscores: alpha_min -> --alpha-min.
+    """
     return '--' + name.replace('_', '-')
 
 
@@ -41,7 +51,17 @@ def _add(group, spec: ParameterSpec) -> None:
 def add_parameter_arguments(parser, settings_class: type, title: str,
                             only: Sequence[str] | None = None,
                             skip: Sequence[str] = ()) -> None:
-    """One option per parameter of `settings_class` (all, or those in `only`) in a group."""
+    """One option per parameter of `settings_class` (all, or those in `only`) in a group.
+
+    Parameters
+    ----------
+    parser: the parser to add the group to.
+    settings_class: a settings dataclass whose parameters (core/parameters.py) become options.
+    title: the group's title in the help.
+    only: the names of the parameters to add; None: every one.
+    skip: names of parameters left out (the command sets them itself, or has an option of
+        that name already).
+    """
     group = parser.add_argument_group(title)
     for spec in specs(settings_class):
         if (only is None or spec.name in only) and spec.name not in skip:
@@ -50,24 +70,50 @@ def add_parameter_arguments(parser, settings_class: type, title: str,
 
 def parameter_values(args: argparse.Namespace, base: dict[str, Any] | None = None
                      ) -> dict[str, Any]:
-    """`base` (e.g. a parameter file's values) overridden by the options given."""
+    """`base` (e.g. a parameter file's values) overridden by the options given.
+
+    Parameters
+    ----------
+    args: parsed options; a parameter's option is in it only when given, every other option
+        always.
+    base: the values under the options; None: none.
+
+    Returns
+    -------
+    A new dict name -> value: `base`, then every attribute of `args`.
+    """
     values = dict(base or {})
     values.update(vars(args))
     return values
 
 
 def add_test_arguments(parser: argparse.ArgumentParser) -> None:
-    """Confidence levels and robustifications of the statistical test."""
+    """Confidence levels and robustifications of the statistical test.
+
+    Parameters
+    ----------
+    parser: the parser to add them to, as the group 'statistical test'.
+    """
     add_parameter_arguments(parser, ConsistencyParameters, 'statistical test')
 
 
 def add_verdict_arguments(parser: argparse.ArgumentParser) -> None:
-    """The second stage of the verdict: misalignment or change."""
+    """The second stage of the verdict: misalignment or change.
+
+    Parameters
+    ----------
+    parser: the parser to add them to, as the group 'verdict: misalignment or change'.
+    """
     add_parameter_arguments(parser, ExplanationSettings, 'verdict: misalignment or change')
 
 
 def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
-    """Beam geometry where the input does not state it."""
+    """Beam geometry where the input does not state it: --max-range, --fov, --range-min.
+
+    Parameters
+    ----------
+    parser: the parser to add them to, as the group 'sensor'.
+    """
     group = parser.add_argument_group('sensor')
     group.add_argument('--max-range', type=float, default=None, metavar='METRES',
                        help='usable range: longer readings count as free space up to it and are '
@@ -78,13 +124,28 @@ def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_fov_argument(parser) -> None:
-    """--fov in degrees, for logs that do not state their beam angles (parser or group)."""
+    """--fov in degrees, for logs that do not state their beam angles.
+
+    Parameters
+    ----------
+    parser: the parser or argument group to add it to.
+    """
     parser.add_argument('--fov', type=float, default=None, metavar='DEGREES',
                         help='field of view of logs that do not state their beam angles '
                              '(default: PARAM laser_front_laser_resolution, else 180)')
 
 
 def fov_radians(args: argparse.Namespace) -> float | None:
+    """The field of view given with --fov.
+
+    Parameters
+    ----------
+    args: parsed options with `fov` (degrees, None when not given).
+
+    Returns
+    -------
+    The field of view in radians; None when --fov was not given.
+    """
     return None if args.fov is None else math.radians(args.fov)
 
 

@@ -22,7 +22,15 @@ _HIGHLIGHT_SCALES = 3.0
 def plot_map(ax, scans: ScanSet, assessment: Assessment | None = None, title: str = '') -> None:
     """Draw all end points and the trajectory; then the misaligned regions (orange: the moved
     scans, purple: their reference scans, red: their inconsistent end points) and the changed
-    places (blue circles, area by point count), as in the paper's Fig. 1."""
+    places (blue circles, area by point count), as in the paper's Fig. 1.
+
+    Parameters
+    ----------
+    ax: the matplotlib axes to draw on.
+    scans: the map's scans, at the poses judged.
+    assessment: both stages' verdict on `scans`; None: the map alone.
+    title: the title, above the verdict's summary line.
+    """
     valid_points = scans.endpoints[scans.valid]
     ax.scatter(valid_points[:, 0], valid_points[:, 1], s=0.05, c='0.35', linewidths=0,
                rasterized=True)
@@ -45,7 +53,12 @@ LEGEND_MARKER_AREA = 16.0
 
 def add_legend(ax) -> None:
     """The legend below the axes, outside them, so that it never hides data, with every
-    scatter symbol at LEGEND_MARKER_AREA whatever its size on the map."""
+    scatter symbol at LEGEND_MARKER_AREA whatever its size on the map.
+
+    Parameters
+    ----------
+    ax: the matplotlib axes whose labelled artists it lists; without any, no legend.
+    """
     handles, labels = ax.get_legend_handles_labels()
     if not handles:
         return
@@ -85,7 +98,13 @@ def _plot_explanation(ax, scans: ScanSet, assessment: Assessment) -> None:
 
 
 def plot_statistics(ax, result: ConsistencyResult) -> None:
-    """Histogram of Psi over the tested pairs, with the pairwise test's threshold."""
+    """Histogram of Psi over the tested pairs, with the pairwise test's threshold.
+
+    Parameters
+    ----------
+    ax: the matplotlib axes to draw on.
+    result: the consistency result; the threshold is that of its parameters' alpha.
+    """
     psi = result.statistic[result.tested]
     threshold = statistics.normal_quantile(result.parameters.alpha)
     if psi.size:
@@ -103,7 +122,15 @@ def plot_statistics(ax, result: ConsistencyResult) -> None:
 
 
 def plot_pair(ax, scans: ScanSet, result: ConsistencyResult, index: int) -> None:
-    """Two scans of one pair: free space, end points, and the end points deep in the other."""
+    """Two scans of one pair: free space, end points, and the end points deep in the other.
+
+    Parameters
+    ----------
+    ax: the matplotlib axes to draw on (8 m square around the overlap).
+    scans: the scans tested.
+    result: their consistency result.
+    index: the pair's row in result.pairs.
+    """
     i, j = (int(value) for value in result.pairs[index])
     of_j_in_i, of_i_in_j = point_distances(scans, i, j)
     limit = _HIGHLIGHT_SCALES * max(result.scales[i], result.scales[j])
@@ -131,7 +158,16 @@ def plot_pair(ax, scans: ScanSet, result: ConsistencyResult, index: int) -> None
 
 def save_pairs_figure(path: str | Path, scans: ScanSet, result: ConsistencyResult,
                       count: int = 3) -> None:
-    """The `count` failed pairs with the largest Psi, side by side (red: deep end points)."""
+    """Write the `count` failed pairs with the largest Psi, side by side (red: deep end
+    points), as a PNG.
+
+    Parameters
+    ----------
+    path: the PNG; its folder is created.
+    scans: the scans tested.
+    result: their consistency result; without a failed pair, one empty panel says so.
+    count: the most pairs shown.
+    """
     strongest = np.argsort(-np.where(result.failed, result.statistic, -np.inf))[:count]
     strongest = [index for index in strongest if result.failed[index]]
     figure, axes = plt.subplots(1, max(len(strongest), 1), figsize=(5 * max(len(strongest), 1), 5),
@@ -145,20 +181,39 @@ def save_pairs_figure(path: str | Path, scans: ScanSet, result: ConsistencyResul
 
 def save_map_figure(path: str | Path, scans: ScanSet, assessment: Assessment | None,
                     title: str = '') -> None:
-    """Write the map figure as a PNG."""
+    """Write the map figure (`plot_map`) as a PNG.
+
+    Parameters
+    ----------
+    path: the PNG; its folder is created.
+    scans, assessment, title: as `plot_map` takes them.
+    """
     figure, ax = plt.subplots(figsize=(9, 9))
     plot_map(ax, scans, assessment, title)
     save_figure(figure, path)
 
 
 def save_statistics_figure(path: str | Path, result: ConsistencyResult) -> None:
-    """Write the Psi histogram as a PNG."""
+    """Write the Psi histogram (`plot_statistics`) as a PNG.
+
+    Parameters
+    ----------
+    path: the PNG; its folder is created.
+    result: the consistency result.
+    """
     figure, ax = plt.subplots(figsize=(7, 4))
     plot_statistics(ax, result)
     save_figure(figure, path)
 
 
 def save_figure(figure, path: str | Path) -> None:
+    """Write `figure` at 150 dpi, laid out tight, and close it.
+
+    Parameters
+    ----------
+    figure: the matplotlib figure.
+    path: the image file (PNG by its suffix); its folder is created.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.tight_layout()

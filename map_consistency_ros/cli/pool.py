@@ -40,10 +40,22 @@ def run_all(function: Callable, items: Sequence, arguments: tuple = (),
             progress: Progress | None = None) -> list:
     """function(item, *arguments) for every item; results in the order of `items`.
 
-    `scheduler`: the address of a Dask scheduler (tcp://host:8786); the workers must be able
-    to import this package and read whatever the items name. Without it, `workers` local
-    processes (default: one per core; 1: in this process). An exception raised by `function`
-    propagates (after the pool is shut down); an item whose worker died yields `WorkerDied`.
+    Parameters
+    ----------
+    function: the job; picklable (defined at module level) unless it runs in this process.
+    items: one job each.
+    arguments: the further arguments of every call.
+    workers: local processes; None: one per core; 1: in this process. Not used with a
+        `scheduler`.
+    scheduler: the address of a Dask scheduler (tcp://host:8786); the workers must be able
+        to import this package and read whatever the items name. None: run locally.
+    progress: progress(done, total), called as items finish.
+
+    Returns
+    -------
+    The result of every item, in the order of `items`; an item whose worker died yields
+    `WorkerDied`. An exception raised by `function` propagates (after the pool is shut
+    down); InputError for fewer than 1 worker or a scheduler that cannot be reached.
     """
     if scheduler is not None:
         return _on_dask(function, items, arguments, scheduler, progress)
@@ -61,7 +73,18 @@ def run_all(function: Callable, items: Sequence, arguments: tuple = (),
 
 
 def single_threaded_call(function: Callable, item: Any, *arguments) -> Any:
-    """function(item, *arguments) with numba on one thread (the module docstring says why)."""
+    """function(item, *arguments) with numba on one thread (the module docstring says why).
+
+    Parameters
+    ----------
+    function: the job.
+    item: its item.
+    arguments: its further arguments.
+
+    Returns
+    -------
+    What `function` returns.
+    """
     import numba
     numba.set_num_threads(1)  # numba's setting is per calling thread: set it in the job
     return function(item, *arguments)

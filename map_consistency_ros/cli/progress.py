@@ -7,7 +7,14 @@ from typing import TextIO
 
 
 class ProgressBar:
-    """Redraws one line on a terminal; elsewhere (CI logs) prints a line every quarter."""
+    """Redraws one line on a terminal; elsewhere (CI logs) prints a line every quarter.
+
+    Parameters
+    ----------
+    label: the text before the bar.
+    stream: where it is drawn; None: sys.stderr.
+    enabled: False: it draws nothing (--quiet).
+    """
 
     WIDTH = 30
 

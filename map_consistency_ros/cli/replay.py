@@ -68,6 +68,13 @@ _SETTLE_SECONDS = 1.0  # after the first subscribers match, for the others to ma
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `replay`: the bags, the topics, the parameter file, the node's
+    parameters, the outputs and publishing.
+
+    Parameters
+    ----------
+    parser: the parser of the `replay` subcommand.
+    """
     parser.add_argument('bags', type=Path, nargs='+', metavar='BAG',
                         help='ROS 1 .bag file, or rosbag2 folder (mcap / sqlite3); several files '
                              'of one recording may be given')
@@ -96,7 +103,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_topic_arguments(parser: argparse.ArgumentParser) -> None:
-    """The bag topics replay reads."""
+    """The bag topics replay reads.
+
+    Parameters
+    ----------
+    parser: the parser to add them to, as the group 'topics'.
+    """
     topics = parser.add_argument_group('topics')
     topics.add_argument('--scan-topic', default='/scan', help='LaserScan topic (%(default)s)')
     topics.add_argument('--pose-topic', default=None,
@@ -152,12 +164,24 @@ class ReplayStats:
         return self.scans / self.log_seconds if self.log_seconds > 0 else math.inf
 
     def warn(self, text: str) -> None:
+        """Keep a warning for the summary and the report.
+
+        Parameters
+        ----------
+        text: the warning, one line.
+        """
         self.warnings.append(text)
 
 
 class Replay:
     """Feeds one bag's records through the node's live pipeline (core/live/pipeline.py), in
-    log order."""
+    log order.
+
+    Parameters
+    ----------
+    bag: the open bag.
+    pipeline: the live pipeline that takes its records (`make_pipeline`).
+    """
 
     def __init__(self, bag: BagReader, pipeline: LivePipeline) -> None:
         self.bag = bag
@@ -166,7 +190,20 @@ class Replay:
 
     def run(self, progress=None, duration: float | None = None) -> MonitorSnapshot:
         """Feed the records (of the first `duration` seconds); return the first stage on the
-        final map."""
+        final map.
+
+        Bad messages, and the pipeline's warnings and resets, become warnings of `stats`.
+
+        Parameters
+        ----------
+        progress: progress(scans replayed, scans in the bag), called after each scan; None:
+            no progress.
+        duration: seconds of bag time to replay from its start; None: all of it.
+
+        Returns
+        -------
+        The pipeline's snapshot of the final map.
+        """
         total = self.bag.message_count(self.bag.topics.scan)
         started = time.perf_counter()
         stop = math.inf if duration is None else self.bag.start_time + duration
@@ -231,9 +268,20 @@ def _first_frames(bag: BagReader) -> tuple[str, str] | None:
 
 
 def parameter_values(args: argparse.Namespace, base: dict | None = None) -> dict:
-    """The parameter file's values (or `base`, the values of a file read before) overridden by
-    the options given; unknown names in a file read here are warned about on stderr with the
-    closest valid name."""
+    """The parameter file's values overridden by the options given.
+
+    Parameters
+    ----------
+    args: parsed `replay` options, --params-file among them.
+    base: the values of a file read before; None: --params-file is read here (none given:
+        no values), and its unknown names are warned about on stderr with the closest valid
+        name.
+
+    Returns
+    -------
+    name -> value, without the bags, the topics and the file's name; the other options that
+    are no parameters stay (the configuration ignores them).
+    """
     if base is None:
         base = {} if args.params_file is None else read_parameter_file(args.params_file)
         for warning in parameter_file_warnings(base):
@@ -246,14 +294,34 @@ def parameter_values(args: argparse.Namespace, base: dict | None = None) -> dict
 
 
 def parameter_file_warnings(values: dict) -> list[str]:
-    """A line for each name of a parameter file that is no node parameter."""
+    """A line for each name of a parameter file that is no node parameter.
+
+    Parameters
+    ----------
+    values: the parameter file's values by name.
+
+    Returns
+    -------
+    The warnings, sorted by name, each naming the closest valid name (use_sim_time, rclpy's,
+    is valid).
+    """
     return unknown_parameters(values, foreign=('use_sim_time',))
 
 
 def configuration(values: dict, groups: tuple[str, ...] | None = None) -> Configuration:
-    """The configuration of the parameter values (every group, or `groups`), all checked as
-    the node checks them, so a parameter file that would stop the node stops replay too;
-    InputError names a bad value."""
+    """The configuration of the parameter values, all checked as the node checks them, so a
+    parameter file that would stop the node stops replay too.
+
+    Parameters
+    ----------
+    values: parameter name -> value (`parameter_values`).
+    groups: the configuration's groups made from `values` ('feed', ...); the others keep
+        their defaults. None: every group.
+
+    Returns
+    -------
+    The Configuration; InputError names a bad value.
+    """
     try:
         return Configuration.from_values(values, groups)
     except ValueError as error:
@@ -262,9 +330,19 @@ def configuration(values: dict, groups: tuple[str, ...] | None = None) -> Config
 
 def open_bag(args: argparse.Namespace, values: dict | None = None,
              config: Configuration | None = None) -> BagReader:
-    """The reader of the bags named by parsed replay options (enter it to open); `values`
-    are the parameters (default: from the options), `config` their configuration (default:
-    the input group's, all that opening needs)."""
+    """The reader of the bags named by parsed replay options (enter it to open).
+
+    Parameters
+    ----------
+    args: parsed `replay` options: the bags and topics.
+    values: the parameters; None: from the options. Only read without `config`.
+    config: their configuration, whose feed's max_range the reader converts scans with;
+        None: the feed group's of `values`, all that opening needs.
+
+    Returns
+    -------
+    The BagReader, not open yet; InputError for a bad parameter value.
+    """
     if config is None:
         values = parameter_values(args) if values is None else values
         config = configuration(values, ('feed',))
@@ -277,9 +355,20 @@ def open_bag(args: argparse.Namespace, values: dict | None = None,
 
 
 def make_pipeline(config: Configuration, pose_type: str, graph: bool = False) -> LivePipeline:
-    """The node's live pipeline with the node's configuration; the pose source is the bag
-    topic's type, or slam_toolbox when the bag has its graph markers beside its poses
-    (`graph`)."""
+    """The node's live pipeline with the node's configuration.
+
+    Parameters
+    ----------
+    config: the configuration; its feed's pose_source is replaced.
+    pose_type: the message type of the bag's pose topic: its pose source
+        (POSE_SOURCE_TYPES).
+    graph: the bag has slam_toolbox's graph markers beside its poses: the pose source is
+        slam_toolbox.
+
+    Returns
+    -------
+    A new LivePipeline.
+    """
     source = 'slam_toolbox' if graph else next(
         name for name, msgtype in POSE_SOURCE_TYPES.items() if msgtype == pose_type)
     return LivePipeline(config.consistency, config.monitor,
@@ -288,9 +377,21 @@ def make_pipeline(config: Configuration, pose_type: str, graph: bool = False) ->
 
 def replay_bag(args: argparse.Namespace, bag: BagReader, values: dict | None = None,
                config: Configuration | None = None) -> tuple[MonitorSnapshot, Replay, dict]:
-    """Run the monitor over an open bag; the snapshot, the replay and the report details.
-    `values` are the parameters (default: from the options), `config` their configuration
-    (default: made from them); the laser offset not given is the bag's."""
+    """Run the monitor over an open bag.
+
+    Parameters
+    ----------
+    args: parsed `replay` options (quiet, duration).
+    bag: the open bag.
+    values: the parameters; None: from the options. Without laser_offset among them, the
+        laser offset is the bag's (/tf_static).
+    config: their configuration; None: made from them.
+
+    Returns
+    -------
+    The snapshot of the final map (the first stage), the replay (its pipeline and counts)
+    and the report's details. InputError for a bad parameter value.
+    """
     values = parameter_values(args) if values is None else values
     config = configuration(values) if config is None else config
     offset, offset_source = _laser_offset(bag, values)
@@ -388,12 +489,24 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
                 discovery_timeout: float = 10.0) -> int:
     """Play the scan, pose and constraints topics onto ROS 2 as raw CDR, paced at `rate`.
 
-    Waits up to `discovery_timeout` seconds until every topic has `subscribers` subscribers,
-    then a moment more for others found in the same discovery round, so that nodes started
-    just before (a node under test, a recorder) get the first messages. Publishers are reliable with
-    deep queues, compatible with both reliable and sensor-data (best effort) subscribers.
-    `/clock` carries the bag's log time before each message, so nodes with use_sim_time
-    follow the bag (and see it pause when it ends).
+    Publishers are reliable with deep queues, compatible with both reliable and sensor-data
+    (best effort) subscribers. `/clock` carries the bag's log time before each message, so
+    nodes with use_sim_time follow the bag (and see it pause when it ends).
+
+    Parameters
+    ----------
+    bag: the open bag; its input topics are played.
+    rate: playback speed, 1 = real time.
+    quiet: no progress bar.
+    subscribers: wait until every topic has this many subscribers, then a moment more for
+        others found in the same discovery round, so that nodes started just before (a node
+        under test, a recorder) get the first messages.
+    discovery_timeout: seconds to wait for the `subscribers` at most.
+
+    Returns
+    -------
+    The exit code 0. InputError for a bad `rate` or `subscribers`, without rclpy, or for a
+    topic whose message package is not installed.
     """
     if not rate > 0:
         raise InputError('options', f'--rate must be positive, got {rate}')
@@ -452,6 +565,19 @@ def publish_bag(bag: BagReader, rate: float, quiet: bool = False, subscribers: i
 
 
 def run(args: argparse.Namespace) -> int:
+    """Replay the bags and report the final verdict; with --publish, play them onto ROS 2
+    topics instead.
+
+    Parameters
+    ----------
+    args: parsed `replay` options.
+
+    Returns
+    -------
+    The exit code: EXIT_CONSISTENT (0) for a consistent map, and after publishing;
+    EXIT_INCONSISTENT (1) for an inconsistent one. Bad input raises InputError, which `main`
+    turns into exit code 2.
+    """
     values = parameter_values(args)
     if args.publish:
         with open_bag(args, values) as bag:
@@ -472,6 +598,7 @@ class BagJudgement:
 
     @property
     def assessment(self) -> Assessment:
+        """Both stages' verdict on the final map."""
         return self.verdict.assessment
 
     @property
@@ -481,16 +608,29 @@ class BagJudgement:
 
     @property
     def snapshot(self) -> MonitorSnapshot:
+        """The first stage on the final map, the snapshot the verdict judged."""
         return self.verdict.snapshot
 
     @property
     def consistent(self) -> bool:
+        """Whether both stages find the final map consistent."""
         return self.verdict.consistent
 
 
 def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
     """Replay the bags named by parsed `replay` options and judge the final map (the one code
-    path of `replay` and of `batch` for bags)."""
+    path of `replay` and of `batch` for bags).
+
+    Parameters
+    ----------
+    args: parsed `replay` options.
+    values: the parameters; None: from the options (and --params-file).
+
+    Returns
+    -------
+    The BagJudgement: both stages' verdict, the report's details, the summary lines, the
+    monitor. InputError for a bad input, or when no pose matched a scan (no keyframe).
+    """
     values = parameter_values(args) if values is None else values
     config = configuration(values)
     with open_bag(args, values, config) as bag:
@@ -508,8 +648,17 @@ def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
 
 def replay_and_report(args: argparse.Namespace,
                       values: dict | None = None) -> tuple[int, ConsistencyMonitor]:
-    """Replay the bag, print the verdict, write the outputs asked for; the exit code and the
-    monitor in its final state."""
+    """Replay the bag, print the verdict, write the outputs asked for.
+
+    Parameters
+    ----------
+    args: parsed `replay` options.
+    values: the parameters; None: from the options (and --params-file).
+
+    Returns
+    -------
+    The exit code (EXIT_CONSISTENT or EXIT_INCONSISTENT) and the monitor in its final state.
+    """
     judgement = judge(args, values)
     print(judgement.summary)
     check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details)

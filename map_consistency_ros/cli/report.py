@@ -16,7 +16,13 @@ __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv'
 
 def write_json(path: str | Path, report: dict) -> None:
     """Write `report` as indented strict JSON (numpy arrays and scalars become lists and
-    numbers, values that do not exist null: reporting.to_json)."""
+    numbers, values that do not exist null: reporting.to_json).
+
+    Parameters
+    ----------
+    path: the JSON file; its folder is created.
+    report: the report: dicts, lists, numbers, strings and numpy values.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(to_json(report, indent=2) + '\n')
@@ -24,7 +30,16 @@ def write_json(path: str | Path, report: dict) -> None:
 
 def write_pairs_csv(path: str | Path, result: ConsistencyResult,
                     scan_ids: np.ndarray | None = None) -> None:
-    """Every overlapping pair (n_ij > 0): i, j, M_ij, n_ij, psi_ij (empty if untested), failed."""
+    """Write every overlapping pair (n_ij > 0) as CSV: i, j, M_ij, n_ij, psi_ij (empty if
+    untested), failed.
+
+    Parameters
+    ----------
+    path: the CSV file; its folder is created.
+    result: the consistency result.
+    scan_ids: (S,) names of the scans for i and j (record positions, stamps); None: their
+        indices.
+    """
     ids = scan_names(result, scan_ids)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -43,7 +58,18 @@ def write_pairs_csv(path: str | Path, result: ConsistencyResult,
 
 def format_summary(assessment: Assessment, source: str,
                    scan_ids: np.ndarray | None = None) -> str:
-    """A few human lines: the verdict, what was tested, the misaligned regions."""
+    """A few human lines: the verdict, what was tested, the misaligned regions.
+
+    Parameters
+    ----------
+    assessment: both stages' verdict.
+    source: what was judged (the input's path), the first line's label.
+    scan_ids: (S,) names of the scans in the regions; None: their indices.
+
+    Returns
+    -------
+    The lines joined by newlines; at most five regions, then how many more there are.
+    """
     result = assessment.result
     figures = result.summary()
     ids = scan_names(result, scan_ids)
@@ -70,7 +96,18 @@ _SHOWN_REGIONS = 5
 
 
 def region_text(region, ids: np.ndarray) -> str:
-    """One misaligned region: its scans (named by `ids`), its reference scans, its size."""
+    """One misaligned region: its scans (named by `ids`), its reference scans, its size.
+
+    Parameters
+    ----------
+    region: a misaligned region of an Assessment.
+    ids: (S,) names of the scans.
+
+    Returns
+    -------
+    One line, e.g. 'scans 12-40 (29) against scans 0-11 (12): 0.31 m RMS (dx ...), 57 pairs';
+    a region beyond local registration is called a gross error.
+    """
     return f'{_span(ids[region.scans])} against {_span(ids[region.reference_scans])}: ' \
            f'{_size(region)}'
 

@@ -54,14 +54,32 @@ class MonitorHealth:
 
 
 def not_monitoring(failure: str) -> str:
-    """What the node says (log, diagnostics, services) when its kernels failed to load."""
+    """What the node says (log, diagnostics, services) when its kernels failed to load.
+
+    Parameters
+    ----------
+    failure: why loading failed ('ExceptionName: message').
+
+    Returns
+    -------
+    One line: 'not monitoring: loading the compiled kernels failed (<failure>)'.
+    """
     return f'not monitoring: loading the compiled kernels failed ({failure})'
 
 
 def status_level(health: MonitorHealth) -> tuple[bytes, str]:
-    """(level, message): ERROR when the node could not start, WARN while it starts, STALE
+    """The level of the map's status and its message.
+
+    Parameters
+    ----------
+    health: what the node knows about its map and inputs now.
+
+    Returns
+    -------
+    (level, message): ERROR when the node could not start, WARN while it starts, STALE
     without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input,
-    a failed second stage or a recent bad message, OK otherwise."""
+    a failed second stage or a recent bad message, OK otherwise.
+    """
     if health.start_failure:
         return DiagnosticStatus.ERROR, (f'{not_monitoring(health.start_failure)}; '
                                         f'{health.queued_scans} scans queued unprocessed')
@@ -96,7 +114,18 @@ def _optional(value: float | None, scale: float = 1.0, digits: int = 3) -> str:
 
 
 def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
-    """The DiagnosticStatus of the map with the design's key-values."""
+    """The DiagnosticStatus of the map with the design's key-values.
+
+    Parameters
+    ----------
+    health: what the node knows about its map and inputs now.
+    hardware_id: the status's hardware_id (the node's fully qualified name).
+
+    Returns
+    -------
+    The status named STATUS_NAME, with the level and message of `status_level` and a
+    key-value per figure of `health` ('n/a' for a figure not known yet).
+    """
     level, message = status_level(health)
     values = {
         'ready': 'failed' if health.start_failure else ('no' if health.starting else 'yes'),

@@ -116,7 +116,13 @@ class Engine:
                                            name='map_consistency_explainer', daemon=True)
 
     def start(self, intake: Intake, outputs: Outputs) -> None:
-        """Start both threads: records come from `intake`, results go to `outputs`."""
+        """Start both threads.
+
+        Parameters
+        ----------
+        intake: the node's intake, whose queued records the worker takes.
+        outputs: the node's outputs, which publish the results.
+        """
         self._intake, self._outputs = intake, outputs
         self._worker.start()
         self._explainer.start()
@@ -132,8 +138,13 @@ class Engine:
         return self._worker.is_alive() or self._explainer.is_alive()
 
     def stop(self, timeout: float) -> None:
-        """Stop both threads, waiting at most `timeout` seconds for each; waiting services
-        give up."""
+        """Stop both threads; waiting services give up.
+
+        Parameters
+        ----------
+        timeout: seconds to wait for each thread at most; one still running then (an update
+            cannot be interrupted) ends by itself, a daemon.
+        """
         self.begin_stop()
         self._worker.join(timeout=timeout)
         self._explainer.join(timeout=timeout)
@@ -148,6 +159,11 @@ class Engine:
     def run(self, job: Callable[[], object], timeout: float):
         """`job()` on the worker thread (the pipeline's owner), on every core.
 
+        Parameters
+        ----------
+        job: a function of no argument; it may use the pipeline.
+        timeout: seconds to wait for its result.
+
         Returns
         -------
         Its result; its exception is raised here. ShuttingDown when the node stops first,
@@ -159,8 +175,18 @@ class Engine:
         return self.wait(future, timeout)
 
     def wait(self, future: Future, timeout: float):
-        """The future's result; ShuttingDown when the node stops first, NotMonitoring when
-        the worker could not start, TimeoutError."""
+        """Wait for a job's result.
+
+        Parameters
+        ----------
+        future: the job's future.
+        timeout: seconds to wait at most.
+
+        Returns
+        -------
+        The future's result (its exception is raised here); ShuttingDown when the node stops
+        first, NotMonitoring when the worker could not start, TimeoutError after `timeout`.
+        """
         deadline = time.monotonic() + timeout
         while not self._stop.is_set():
             if self.start_failure:
@@ -190,6 +216,10 @@ class Engine:
 
     def reset(self, reason: str) -> int:
         """Forget every scan, keyframe and constraint and publish (a job: worker thread).
+
+        Parameters
+        ----------
+        reason: why, for the log and the diagnostics' last reset.
 
         Returns
         -------

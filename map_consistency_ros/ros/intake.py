@@ -120,14 +120,24 @@ class Intake:
                                  self._on_constraints, RELIABLE, callback_group=poses)
 
     def now(self) -> float:
-        """Seconds on the node's clock (simulated time with use_sim_time)."""
+        """The time on the node's clock.
+
+        Returns
+        -------
+        Seconds on the node's clock (simulated time with use_sim_time).
+        """
         return self._node.get_clock().now().nanoseconds * 1e-9
 
     # -- what the engine takes and reports -------------------------------------------------
 
     def take(self) -> list[tuple[float, Record]]:
-        """Every queued record with its arrival: scans and single poses in arrival order, then
-        the newest constraints and keyframe estimate."""
+        """Take every queued record; the queues are empty after.
+
+        Returns
+        -------
+        (arrival by time.monotonic, record) of every queued record: scans, then single poses,
+        each in arrival order, then the newest constraints and keyframe estimate.
+        """
         with self._lock:
             records = list(self._scans) + list(self._poses)
             self._scans.clear()
@@ -139,7 +149,14 @@ class Intake:
         return records
 
     def problem(self, topic: str, message: str) -> None:
-        """Count a bad message, keep it for diagnostics, warn at most once per period."""
+        """Count a bad message, keep it for diagnostics, warn at most once per period.
+
+        Parameters
+        ----------
+        topic: the input it came on ('scan', 'trajectory', ...); warnings are rate-limited
+            per topic (NodeSettings.warning_period).
+        message: what was wrong with it.
+        """
         now = time.monotonic()
         with self._lock:
             self._problems += 1
@@ -149,7 +166,13 @@ class Intake:
             self._node.get_logger().warning(f'ignored bad input on {topic}: {message}')
 
     def record_problems(self, record: Record, warnings: tuple[str, ...]) -> None:
-        """The warnings of applying `record`, as problems of the topic it came from."""
+        """The warnings of applying `record`, as problems of the topic it came from.
+
+        Parameters
+        ----------
+        record: the record the pipeline applied.
+        warnings: the pipeline's warnings about it, each one problem.
+        """
         topic = RECORD_TOPICS[type(record)]
         for warning in warnings:
             self.problem(topic, warning)
@@ -160,7 +183,12 @@ class Intake:
             self._dds_lost = self._queue_lost = 0
 
     def figures(self) -> InputFigures:
-        """The intake's figures now."""
+        """The intake's figures now.
+
+        Returns
+        -------
+        The InputFigures: last input, bad messages, lost and queued scans.
+        """
         with self._lock:
             return InputFigures(last_input=self._last_input, problems=self._problems,
                                 last_problem=self._last_problem,
@@ -190,6 +218,12 @@ class Intake:
             msgtype, data, _deserialized, self._feed_settings.max_range))
 
     def _on_scan(self, msg) -> None:
+        """Queue a scan; with the queue full, the oldest goes and counts as lost.
+
+        Parameters
+        ----------
+        msg: a sensor_msgs/LaserScan; a bad one is counted as a problem and dropped.
+        """
         record = self._convert('scan', messages.SCAN_TYPE, msg)
         if record is None:
             return
@@ -201,10 +235,23 @@ class Intake:
         self._wake.set()
 
     def _on_scans_lost(self, info) -> None:
+        """Count the scans the middleware reports lost.
+
+        Parameters
+        ----------
+        info: rclpy's QoSMessageLostInfo; its total_count_change is added.
+        """
         with self._lock:
             self._dds_lost += info.total_count_change
 
     def _on_trajectory(self, data: bytes) -> None:
+        """Keep the newest keyframe estimate.
+
+        Parameters
+        ----------
+        data: a serialized nav_msgs/Path (raw subscription); a bad one is counted as a problem
+            and dropped, the estimate queued before it stays.
+        """
         record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
         if record is not None:
             with self._lock:
@@ -215,9 +262,24 @@ class Intake:
             self._wake.set()
 
     def _on_pose(self, msgtype: str, msg) -> None:
+        """Queue a single pose.
+
+        Parameters
+        ----------
+        msgtype: the pose source's message type (Odometry, PoseStamped or
+            PoseWithCovarianceStamped).
+        msg: the message; a bad one is counted as a problem and dropped.
+        """
         self._queue_pose(self._convert('pose', msgtype, msg))
 
     def _on_graph(self, data: bytes) -> None:
+        """Queue a snapshot of slam_toolbox's graph markers.
+
+        Parameters
+        ----------
+        data: a serialized visualization_msgs/MarkerArray (raw subscription); a bad one is
+            counted as a problem and dropped.
+        """
         self._queue_pose(self._convert_bytes('graph_visualization', messages.MARKER_ARRAY_TYPE,
                                              data))
 
@@ -234,6 +296,13 @@ class Intake:
             self._wake.set()
 
     def _on_constraints(self, msg) -> None:
+        """Keep the newest constraint set.
+
+        Parameters
+        ----------
+        msg: a std_msgs/Float64MultiArray of edge rows; a bad one is counted as a problem and
+            dropped, the set queued before it stays.
+        """
         record = self._convert('constraints', messages.CONSTRAINTS_TYPE, msg)
         if record is not None:
             with self._lock:

@@ -117,8 +117,25 @@ class MarkerUpdates:
     def changed(self, snapshot: MonitorSnapshot, assessment: Assessment,
                 judged: MonitorSnapshot, points: Callable[[], np.ndarray], frame_id: str,
                 stamp: Time) -> MarkerArray:
-        """Markers that differ from the last call; `points` computes the misaligned end points
-        of `assessment` (the verdict on `judged`), called only when the verdict is new."""
+        """Markers that differ from the last call.
+
+        Parameters
+        ----------
+        snapshot: the keyframes to draw, at their current poses.
+        assessment: the newest verdict, on `judged`.
+        judged: the snapshot `assessment` judged (`snapshot` or an older one); the keyframes
+            it flagged are red.
+        points: computes the misaligned end points (P, 2) of `assessment`; called only when
+            the verdict is new and inconsistent.
+        frame_id: the markers' frame; a new one redraws every keyframe.
+        stamp: the markers' header stamp.
+
+        Returns
+        -------
+        The keyframes that are new, moved or recoloured, the verdict's end points and changed
+        places when the verdict is new, and the legend once there is a keyframe; an empty
+        array when nothing changed.
+        """
         markers = []
         ids, poses = snapshot.ids, snapshot.poses
         verdicts = _verdicts(snapshot, assessment, judged)
@@ -157,13 +174,28 @@ class MarkerUpdates:
                 for array in (self._shown, self._shown_poses, self._shown_verdicts))
 
     def all(self) -> MarkerArray:
-        """Every marker published so far, for a subscriber that joined late."""
+        """Every marker published so far, for a subscriber that joined late.
+
+        Returns
+        -------
+        The keyframes' markers as last published, the verdict's and the legend.
+        """
         markers = list(self._keyframes.values())
         markers += [*(self._verdict or ()), *([self._legend] if self._legend else [])]
         return MarkerArray(markers=markers)
 
     def clear(self, frame_id: str, stamp: Time) -> MarkerArray:
-        """DELETEALL (after a reset: the old session's markers go)."""
+        """DELETEALL (after a reset: the old session's markers go); forget what was shown.
+
+        Parameters
+        ----------
+        frame_id: the marker's frame.
+        stamp: the marker's header stamp.
+
+        Returns
+        -------
+        An array of the one DELETEALL marker.
+        """
         self._keyframes.clear()
         self._shown[:] = False
         self._verdict = self._judged = self._legend = None

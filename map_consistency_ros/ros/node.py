@@ -51,7 +51,12 @@ def _ros_default(spec: ParameterSpec):
 
 
 class MapConsistencyNode(Node):
-    """The `map_consistency` node (see docs/node.md for its contract)."""
+    """The `map_consistency` node (see docs/node.md for its contract).
+
+    Parameters
+    ----------
+    kwargs: rclpy Node's keyword arguments (context, parameter_overrides, ...).
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('map_consistency', **kwargs)
@@ -113,6 +118,8 @@ class MapConsistencyNode(Node):
         return self.node_services.tuning or self.engine.alive
 
     def destroy_node(self) -> None:
+        """Stop the engine (waiting briefly for its threads), then destroy the service host
+        and the node."""
         self.engine.stop(timeout=_SHUTDOWN_ANSWER_SECONDS)
         self.service_host.destroy_node()
         super().destroy_node()
@@ -142,6 +149,16 @@ def main(args: list[str] | None = None) -> int:
 
     SIGINT / SIGTERM stop the node within a second in every state: pending service calls are
     answered with a failure, a running retune is abandoned.
+
+    Parameters
+    ----------
+    args: the command line rclpy reads (--ros-args ...); None: sys.argv.
+
+    Returns
+    -------
+    The exit code: 0 after a stop; 2 for a bad parameter or slam_toolbox interfaces that
+    cannot be imported (one line on stderr). With a retune or an update still running, the
+    process ends at once with 0 (os._exit) instead of returning.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()

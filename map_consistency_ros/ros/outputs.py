@@ -64,9 +64,14 @@ class Outputs:
         return self._node.get_clock().now().to_msg()
 
     def publish(self, changed_at: float | None) -> None:
-        """Publish the engine's snapshot with its newest verdict (under the engine's lock);
-        `changed_at`: the arrival (time.monotonic) of the input this answers, None for a new
-        second stage."""
+        """Publish the engine's snapshot with its newest verdict (under the engine's lock):
+        the markers that changed, ~/consistent, ~/report and /diagnostics.
+
+        Parameters
+        ----------
+        changed_at: the arrival (time.monotonic) of the input this answers: the update's
+            latency counts from it. None for a new second stage.
+        """
         engine = self._engine
         snapshot, verdict = engine.snapshot, engine.verdict
         start = time.perf_counter()
@@ -99,7 +104,15 @@ class Outputs:
         self._markers.publish(self._marker_updates.clear(self._engine.frame_id, self._stamp()))
 
     def publish_tuning(self, phi: float, stamps: np.ndarray, poses: np.ndarray) -> None:
-        """A retune's Phi* and the keyframe poses optimized with it."""
+        """A retune's Phi* and the keyframe poses optimized with it.
+
+        Parameters
+        ----------
+        phi: Phi*, published on ~/tuned_phi and kept for diagnostics.
+        stamps: (K,) the keyframes' stamps, seconds.
+        poses: (K, 3) their optimized poses (x, y, theta), published on
+            ~/optimized_trajectory in the engine's frame.
+        """
         self.phi = phi
         self._tuned_phi.publish(Float64(data=phi))
         self._optimized.publish(messages.path_message(message_class, stamps, poses,
@@ -113,7 +126,13 @@ class Outputs:
         self._diagnostics.publish(array)
 
     def health(self) -> MonitorHealth:
-        """What the node knows about its map and inputs now."""
+        """What the node knows about its map and inputs now.
+
+        Returns
+        -------
+        The MonitorHealth of the engine's snapshot and verdict, the intake's figures and the
+        last update and retune.
+        """
         engine = self._engine
         snapshot = engine.snapshot
         result = snapshot.result

@@ -18,7 +18,18 @@ GRAPH = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 
 
 def scan_qos(depth: int, reliable: bool) -> QoSProfile:
-    """The scan subscription's profile (NodeSettings.scan_queue_depth, scan_reliability)."""
+    """The scan subscription's profile.
+
+    Parameters
+    ----------
+    depth: messages kept (NodeSettings.scan_queue_depth).
+    reliable: RELIABLE; False: BEST_EFFORT, as many drivers publish their scans
+        (NodeSettings.scan_reliability).
+
+    Returns
+    -------
+    A volatile keep-last profile.
+    """
     return QoSProfile(depth=depth, reliability=(ReliabilityPolicy.RELIABLE if reliable
                                                 else ReliabilityPolicy.BEST_EFFORT),
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)

@@ -26,12 +26,22 @@ _TITLED = tuple((group.title, group.settings) for group in GROUPS)
 
 
 def parameter_file() -> str:
-    """The text of config/map_consistency.yaml."""
+    """The node's parameter file.
+
+    Returns
+    -------
+    The text of config/map_consistency.yaml: every parameter at its default, by group.
+    """
     return yaml_document(_TITLED, _HEADER)
 
 
 def parameter_table() -> str:
-    """The parameter table of docs/node.md."""
+    """The parameter table of docs/node.md.
+
+    Returns
+    -------
+    The Markdown table of every parameter, by group.
+    """
     return markdown_table(_TITLED)
 
 

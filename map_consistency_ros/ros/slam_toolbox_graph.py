@@ -67,9 +67,20 @@ def _subscribe(node, msgtype: str, callback, qos: QoSProfile, group, raw: bool =
 
 def subscribe(node, group, convert: Convert, convert_bytes: Convert,
               queue: Callable[[object], None]) -> None:
-    """Subscribe `node` to the three topics in callback `group`: each message becomes a record
-    (`convert`, or `convert_bytes` for the graph's raw bytes; None when it was bad) handed to
-    `queue` in arrival order."""
+    """Subscribe `node` to the three topics: each message becomes a record handed to `queue`
+    in arrival order.
+
+    Parameters
+    ----------
+    node: the node that subscribes.
+    group: the callback group of the three subscriptions.
+    convert: convert(topic, type, message) of a node or loop-closure event: its record,
+        None when it was bad (`convert` counts the problem).
+    convert_bytes: the same for the pose graph, taken raw: its serialized bytes.
+    queue: takes each record, or None for a bad message.
+
+    MissingInterfaces when slam_toolbox's message classes cannot be imported.
+    """
     require_interfaces()
     for msgtype in (NEW_NODE_EVENT_TYPE, LOOP_CLOSURE_EVENT_TYPE):
         _subscribe(node, msgtype,
