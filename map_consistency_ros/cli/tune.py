@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
     except ValueError as error:
         raise InputError('options', str(error)) from None
-    settings, explanation = config.tuning, config.explanation
+    settings, parameters, explanation = config.tuning, config.consistency, config.explanation
     content, log = load_graph(args)
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)
@@ -113,14 +113,15 @@ def run(args: argparse.Namespace) -> int:
     source = str(args.graph or args.build[0])
     with ProgressBar('tuning Phi', enabled=not args.quiet) as progress:
         try:
-            result = tune_dcs(content.graph, ranges, model, offset, settings, progress, profile)
+            result = tune_dcs(content.graph, ranges, model, offset, settings, parameters,
+                              progress, profile)
         except ValueError as error:
             raise InputError(source, str(error)) from None
     elapsed = time.perf_counter() - started
     baseline = profile.evaluate(1.0)
     baseline_scans = profile.scans_at(baseline.optimization.poses)
     baseline_test = explain(baseline_scans, check_consistency(
-        baseline_scans, settings.parameters,
+        baseline_scans, parameters,
         reference_scans=profile.scans_at(content.graph.odometry_chain())), explanation)
     tuned = explain(profile.scans_at(result.poses), result.consistency, explanation)
     _print_summary(source, result, tuned, baseline.value, baseline_test, elapsed)
@@ -158,7 +159,7 @@ def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorM
         'baseline_phi_1': {'average_inconsistency': baseline.value,
                            'summary': baseline_test.result.summary(),
                            'summary_line': baseline_test.summary_line()},
-        'search': {key: value for key, value in vars(settings).items() if key != 'parameters'},
+        'search': dict(vars(settings)),
         'sensor_model': vars(model),
         'poses': result.poses,
         'runtime_seconds': elapsed,

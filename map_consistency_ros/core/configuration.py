@@ -96,8 +96,8 @@ class Configuration:
 
     `Configuration()` is the defaults; `Configuration.from_values(values)` takes the
     parameters' values by name (a parameter file, options, ROS parameters). The DCS retune
-    judges its maps with the statistical test's parameters: `tuning.parameters` is
-    `consistency` (checked).
+    judges its maps with the statistical test's parameters, `consistency`: `tuning` holds the
+    search's own parameters only.
     """
 
     feed: FeedSettings = _group('input and keyframes', FeedSettings)
@@ -107,11 +107,6 @@ class Configuration:
                                               ExplanationSettings)
     tuning: TuningSettings = _group('DCS retune', TuningSettings)
     node: NodeSettings = _group('node', NodeSettings)
-
-    def __post_init__(self) -> None:
-        if self.tuning.parameters != self.consistency:
-            raise ValueError('tuning.parameters must be the statistical test\'s parameters '
-                             '(consistency)')
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any],
@@ -138,11 +133,7 @@ class Configuration:
         made = {}
         for group in GROUPS:  # in order: the first bad value named is the file's first
             given = values if group.name in taking else {}
-            if group.settings is TuningSettings:
-                made[group.name] = settings_from_values(
-                    TuningSettings, given,
-                    parameters=made.get('consistency', ConsistencyParameters()))
-            elif given:
+            if given:
                 made[group.name] = settings_from_values(group.settings, given)
         return cls(**made)
 

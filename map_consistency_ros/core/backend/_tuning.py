@@ -15,7 +15,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +33,7 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 @dataclass(frozen=True)
 class TuningSettings(Settings):
-    """Search range and resolution and the test.
+    """Search range and resolution of the Phi search and its DCS solves.
 
     The range is the original optimizer tool's; its grid had 40 steps. 20 steps (0.2 apart in
     sqrt(Phi)) found the same Phi* region on eleven built graphs (Intel and Freiburg 079, 0 to
@@ -73,7 +73,6 @@ class TuningSettings(Settings):
     initial_damping: float = parameter(
         1e-9, "a DCS solve's first damping, times the largest normal-equation diagonal", '',
         (1e-16, 1.0))
-    parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -235,6 +234,7 @@ def measure_moved(scans: ScanSet, pairs: np.ndarray, previous: MeasuredPairs | N
 def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
              laser_offset: np.ndarray = (0.0, 0.0, 0.0),
              settings: TuningSettings = TuningSettings(),
+             parameters: ConsistencyParameters = ConsistencyParameters(),
              progress: Progress | None = None,
              profile: InconsistencyProfile | None = None) -> TuningResult:
     """Find Phi* = argmin M(Phi) on [phi_min, phi_max] and test the map at Phi*.
@@ -255,7 +255,7 @@ def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
     best = profile.best()
     reference = profile.scans_at(graph.odometry_chain())
     consistency = check_consistency(profile.scans_at(best.optimization.poses),
-                                    settings.parameters, reference_scans=reference)
+                                    parameters, reference_scans=reference)
     if progress is not None:
         progress(total, total)
     phis, values = profile.profile()
