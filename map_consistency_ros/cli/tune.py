@@ -39,6 +39,13 @@ EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add tune's arguments: the input forms, graph building, the search's parameters, the
+    sensor, the test's and the verdict's parameters, the outputs.
+
+    Parameters
+    ----------
+    parser: the parser of the `tune` subcommand.
+    """
     parser.add_argument('graph', type=Path, nargs='?', help='g2o graph file (see input forms)')
     parser.add_argument('--scans', type=Path, metavar='LOG',
                         help='CARMEN log with one laser record per vertex, in vertex id order')
@@ -66,7 +73,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
-    """The graph and the CARMEN-style record of its scans, from whichever input form was used."""
+    """The graph and the CARMEN-style record of its scans, from whichever input form was used.
+
+    Parameters
+    ----------
+    args: the parsed arguments (graph, --scans, --build and the graph-building options).
+
+    Returns
+    -------
+    (the graph file's content, the log whose laser records are the vertices' scans in vertex
+    id order). InputError when neither or both of GRAPH and --build are given, when the log
+    has not one laser record per vertex, when the graph carries no scans and no --scans is
+    given, or when a file cannot be read.
+    """
     if (args.graph is None) == (args.build is None):
         raise InputError('arguments', 'give either GRAPH or --build LOG RELATIONS BAG')
     if args.build is not None:
@@ -93,6 +112,17 @@ def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Tune Phi on the input of `args`, print the summary and write the outputs asked for.
+
+    Parameters
+    ----------
+    args: the parsed arguments of `tune`.
+
+    Returns
+    -------
+    EXIT_CONSISTENT when the map at Phi* is consistent, else EXIT_INCONSISTENT. InputError
+    (exit code 2) on bad options, files or graphs.
+    """
     try:
         config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
     except ValueError as error:

@@ -115,9 +115,9 @@ class Configuration:
 
         Parameters
         ----------
-        values : parameter name -> value; names that are no parameter are ignored (warn
+        values: parameter name -> value; names that are no parameter are ignored (warn
             about them with `unknown_parameters`), missing parameters take their defaults
-        groups : the names of the groups that take their values from `values` (default:
+        groups: the names of the groups that take their values from `values` (default:
             all); the others keep their defaults (a command whose options share a name with a
             parameter of a group it does not use, e.g. check's --max-range)
 
@@ -138,8 +138,13 @@ class Configuration:
         return cls(**made)
 
     def values(self) -> dict[str, Any]:
-        """Every parameter's value by name, in the order of the parameter file (a Choice as
-        its plain string): what `from_values` takes back."""
+        """Every parameter's value by name: what `from_values` takes back.
+
+        Returns
+        -------
+        parameter name -> value, in the order of the parameter file (a Choice as its plain
+        string).
+        """
         return {spec.name: _plain(getattr(getattr(self, group.name), spec.name))
                 for group in GROUPS for spec in specs(group.settings)}
 
@@ -169,8 +174,8 @@ def unknown_parameters(names: Iterable[str], foreign: Iterable[str] = ()) -> lis
 
     Parameters
     ----------
-    names : the names given (a parameter file's, the node's overrides)
-    foreign : names that are valid there without being ours (rclpy's use_sim_time)
+    names: the names given (a parameter file's, the node's overrides)
+    foreign: names that are valid there without being ours (rclpy's use_sim_time)
 
     Returns
     -------

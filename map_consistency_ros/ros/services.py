@@ -39,7 +39,8 @@ class Services:
     node: the node whose names the services take (e.g. /map_consistency/check).
     engine: the worker that runs the jobs.
     outputs: where a retune's result goes.
-    tuning: the Phi search's settings.
+    tuning: the Phi search's settings; a retune tests its map with the statistical test's
+        parameters the engine's monitor runs with.
     settings: the node's settings.
     """
 
