@@ -39,6 +39,13 @@ EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add tune's arguments: the input forms, graph building, the search's parameters, the
+    sensor, the test's and the verdict's parameters, the outputs.
+
+    Parameters
+    ----------
+    parser: the parser of the `tune` subcommand.
+    """
     parser.add_argument('graph', type=Path, nargs='?', help='g2o graph file (see input forms)')
     parser.add_argument('--scans', type=Path, metavar='LOG',
                         help='CARMEN log with one laser record per vertex, in vertex id order')
@@ -66,7 +73,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
-    """The graph and the CARMEN-style record of its scans, from whichever input form was used."""
+    """The graph and the CARMEN-style record of its scans, from whichever input form was used.
+
+    Parameters
+    ----------
+    args: the parsed arguments (graph, --scans, --build and the graph-building options).
+
+    Returns
+    -------
+    (the graph file's content, the log whose laser records are the vertices' scans in vertex
+    id order). InputError when neither or both of GRAPH and --build are given, when the log
+    has not one laser record per vertex, when the graph carries no scans and no --scans is
+    given, or when a file cannot be read.
+    """
     if (args.graph is None) == (args.build is None):
         raise InputError('arguments', 'give either GRAPH or --build LOG RELATIONS BAG')
     if args.build is not None:
@@ -93,11 +112,22 @@ def load_graph(args: argparse.Namespace) -> tuple[G2oGraph, carmen.CarmenLog]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Tune Phi on the input of `args`, print the summary and write the outputs asked for.
+
+    Parameters
+    ----------
+    args: the parsed arguments of `tune`.
+
+    Returns
+    -------
+    EXIT_CONSISTENT when the map at Phi* is consistent, else EXIT_INCONSISTENT. InputError
+    (exit code 2) on bad options, files or graphs.
+    """
     try:
         config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
     except ValueError as error:
         raise InputError('options', str(error)) from None
-    settings, explanation = config.tuning, config.explanation
+    settings, parameters, explanation = config.tuning, config.consistency, config.explanation
     content, log = load_graph(args)
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)
@@ -113,14 +143,15 @@ def run(args: argparse.Namespace) -> int:
     source = str(args.graph or args.build[0])
     with ProgressBar('tuning Phi', enabled=not args.quiet) as progress:
         try:
-            result = tune_dcs(content.graph, ranges, model, offset, settings, progress, profile)
+            result = tune_dcs(content.graph, ranges, model, offset, settings, parameters,
+                              progress, profile)
         except ValueError as error:
             raise InputError(source, str(error)) from None
     elapsed = time.perf_counter() - started
     baseline = profile.evaluate(1.0)
     baseline_scans = profile.scans_at(baseline.optimization.poses)
     baseline_test = explain(baseline_scans, check_consistency(
-        baseline_scans, settings.parameters,
+        baseline_scans, parameters,
         reference_scans=profile.scans_at(content.graph.odometry_chain())), explanation)
     tuned = explain(profile.scans_at(result.poses), result.consistency, explanation)
     _print_summary(source, result, tuned, baseline.value, baseline_test, elapsed)
@@ -158,7 +189,7 @@ def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorM
         'baseline_phi_1': {'average_inconsistency': baseline.value,
                            'summary': baseline_test.result.summary(),
                            'summary_line': baseline_test.summary_line()},
-        'search': {key: value for key, value in vars(settings).items() if key != 'parameters'},
+        'search': dict(vars(settings)),
         'sensor_model': vars(model),
         'poses': result.poses,
         'runtime_seconds': elapsed,

@@ -96,8 +96,8 @@ class Configuration:
 
     `Configuration()` is the defaults; `Configuration.from_values(values)` takes the
     parameters' values by name (a parameter file, options, ROS parameters). The DCS retune
-    judges its maps with the statistical test's parameters: `tuning.parameters` is
-    `consistency` (checked).
+    judges its maps with the statistical test's parameters, `consistency`: `tuning` holds the
+    search's own parameters only.
     """
 
     feed: FeedSettings = _group('input and keyframes', FeedSettings)
@@ -108,11 +108,6 @@ class Configuration:
     tuning: TuningSettings = _group('DCS retune', TuningSettings)
     node: NodeSettings = _group('node', NodeSettings)
 
-    def __post_init__(self) -> None:
-        if self.tuning.parameters != self.consistency:
-            raise ValueError('tuning.parameters must be the statistical test\'s parameters '
-                             '(consistency)')
-
     @classmethod
     def from_values(cls, values: Mapping[str, Any],
                     groups: Iterable[str] | None = None) -> Configuration:
@@ -120,9 +115,9 @@ class Configuration:
 
         Parameters
         ----------
-        values : parameter name -> value; names that are no parameter are ignored (warn
+        values: parameter name -> value; names that are no parameter are ignored (warn
             about them with `unknown_parameters`), missing parameters take their defaults
-        groups : the names of the groups that take their values from `values` (default:
+        groups: the names of the groups that take their values from `values` (default:
             all); the others keep their defaults (a command whose options share a name with a
             parameter of a group it does not use, e.g. check's --max-range)
 
@@ -138,17 +133,18 @@ class Configuration:
         made = {}
         for group in GROUPS:  # in order: the first bad value named is the file's first
             given = values if group.name in taking else {}
-            if group.settings is TuningSettings:
-                made[group.name] = settings_from_values(
-                    TuningSettings, given,
-                    parameters=made.get('consistency', ConsistencyParameters()))
-            elif given:
+            if given:
                 made[group.name] = settings_from_values(group.settings, given)
         return cls(**made)
 
     def values(self) -> dict[str, Any]:
-        """Every parameter's value by name, in the order of the parameter file (a Choice as
-        its plain string): what `from_values` takes back."""
+        """Every parameter's value by name: what `from_values` takes back.
+
+        Returns
+        -------
+        parameter name -> value, in the order of the parameter file (a Choice as its plain
+        string).
+        """
         return {spec.name: _plain(getattr(getattr(self, group.name), spec.name))
                 for group in GROUPS for spec in specs(group.settings)}
 
@@ -178,8 +174,8 @@ def unknown_parameters(names: Iterable[str], foreign: Iterable[str] = ()) -> lis
 
     Parameters
     ----------
-    names : the names given (a parameter file's, the node's overrides)
-    foreign : names that are valid there without being ours (rclpy's use_sim_time)
+    names: the names given (a parameter file's, the node's overrides)
+    foreign: names that are valid there without being ours (rclpy's use_sim_time)
 
     Returns
     -------

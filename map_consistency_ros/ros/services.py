@@ -39,7 +39,8 @@ class Services:
     node: the node whose names the services take (e.g. /map_consistency/check).
     engine: the worker that runs the jobs.
     outputs: where a retune's result goes.
-    tuning: the Phi search's settings.
+    tuning: the Phi search's settings; a retune tests its map with the statistical test's
+        parameters the engine's monitor runs with.
     settings: the node's settings.
     """
 
@@ -144,13 +145,15 @@ class Services:
         problem = tuning_problem(graph)
         if problem:
             return False, f'cannot tune this graph honestly: {problem}'
+        # judged with the node's statistical test, the parameters the monitor runs with
+        parameters = pipeline.feed.parameters
         start = time.monotonic()
         future: Future = Future()
 
         def tune() -> None:
             try:
                 future.set_result(tune_dcs(graph, snapshot.ranges, snapshot.model,
-                                           snapshot.laser_offset, self._tuning))
+                                           snapshot.laser_offset, self._tuning, parameters))
             except Exception as error:  # noqa: BLE001 - handed to the waiting service
                 future.set_exception(error)
 

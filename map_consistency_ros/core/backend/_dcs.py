@@ -92,22 +92,62 @@ class SparseSystem:
         self._gradient_slot = self._position[component.reshape(-1)[self._gradient_keep]]
 
     def hessian(self, blocks: np.ndarray) -> np.ndarray:
-        """CSC data (in the factorisation order) of the summed (E, 4, 3, 3) per-edge blocks."""
+        """The normal-equation matrix H of the graph, the edges' blocks summed.
+
+        Parameters
+        ----------
+        blocks: (E, 4, 3, 3) the Hessian blocks (ii, ij, ji, jj) of each edge.
+
+        Returns
+        -------
+        (nnz,) CSC data of H over the free vertices, in the factorisation order; the blocks'
+        entries on fixed vertices are dropped.
+        """
         return np.bincount(self._slot, weights=blocks.reshape(-1)[self._keep],
                            minlength=len(self._indices))
 
     def gradient(self, edge_gradients: np.ndarray) -> np.ndarray:
-        """(3 F,) vector (in the factorisation order) of the summed (E, 2, 3) edge gradients."""
+        """The gradient g of the normal equations, the edges' gradients summed.
+
+        Parameters
+        ----------
+        edge_gradients: (E, 2, 3) the gradient of each edge w.r.t. its from and to vertex.
+
+        Returns
+        -------
+        (3 F,) g over the F free vertices, in the factorisation order.
+        """
         return np.bincount(self._gradient_slot,
                            weights=edge_gradients.reshape(-1)[self._gradient_keep],
                            minlength=self.size)
 
     def max_diagonal(self, hessian: np.ndarray) -> float:
-        """The largest diagonal entry of the matrix with CSC data `hessian` (the damping scale)."""
+        """The largest diagonal entry of H, the scale of the damping.
+
+        Parameters
+        ----------
+        hessian: (nnz,) CSC data of H, as `hessian` gives it.
+
+        Returns
+        -------
+        The entry.
+        """
         return float(hessian[self._diagonal].max())
 
     def solve(self, hessian: np.ndarray, gradient: np.ndarray, damping: float) -> np.ndarray:
-        """The step -(H + damping I)^-1 g, as (F, 3) per free vertex."""
+        """The Levenberg-Marquardt step -(H + damping I)^-1 g.
+
+        Parameters
+        ----------
+        hessian: (nnz,) CSC data of H, as `hessian` gives it (not modified).
+        gradient: (3 F,) g, as `gradient` gives it.
+        damping: added to every diagonal entry of H (absolute).
+
+        Returns
+        -------
+        (F, 3) step of each free vertex (in the order of `free`), composed onto its pose.
+        ValueError when the damped matrix is singular.
+        """
         import scipy.sparse.linalg  # where it is used: see _minimum_degree_positions
         data = hessian.copy()
         data[self._diagonal] += damping
@@ -139,7 +179,17 @@ def _minimum_degree_positions(rows: np.ndarray, cols: np.ndarray, size: int) -> 
 
 
 def dcs_scales(chi2: np.ndarray, phi: float | None) -> np.ndarray:
-    """s = min(1, 2 Phi / (Phi + chi2)) per edge; all ones when phi is None."""
+    """The DCS scales s = min(1, 2 Phi / (Phi + chi2)).
+
+    Parameters
+    ----------
+    chi2: (E,) chi2 of each edge (the callers scale loop closures only).
+    phi: the DCS parameter Phi (> 0); None: plain least squares.
+
+    Returns
+    -------
+    (E,) scales in [0, 1]; all ones when phi is None.
+    """
     chi2 = np.asarray(chi2, dtype=np.float64)
     if phi is None:
         return np.ones_like(chi2)
@@ -149,7 +199,19 @@ def dcs_scales(chi2: np.ndarray, phi: float | None) -> np.ndarray:
 
 
 def robust_cost(chi2: np.ndarray, loop_closure: np.ndarray, phi: float | None) -> float:
-    """Sum of chi2 over odometry edges and of the DCS loss rho(chi2) over loop closures."""
+    """The robust cost: chi2 summed over odometry edges, the DCS loss rho(chi2) (see the module
+    docstring) over loop closures.
+
+    Parameters
+    ----------
+    chi2: (E,) chi2 of each edge.
+    loop_closure: (E,) True for loop closures (PoseGraph.is_loop_closure).
+    phi: the DCS parameter Phi (> 0); None: plain least squares, every edge's chi2.
+
+    Returns
+    -------
+    The cost, dimensionless like chi2 (inf or nan when a chi2 is).
+    """
     if phi is None:
         return float(np.sum(chi2))
     loop_chi2 = chi2[loop_closure]
@@ -159,9 +221,19 @@ def robust_cost(chi2: np.ndarray, loop_closure: np.ndarray, phi: float | None) -
 
 def edge_residuals(graph: PoseGraph, poses: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals (E, 3), chi2 (E,) and Jacobians (E, 3, 3) w.r.t. x_i and x_j.
+    """Residuals, chi2 and Jacobians of every edge at `poses`.
 
     Jacobians are taken w.r.t. a right perturbation x <- x Exp(delta) of each pose.
+
+    Parameters
+    ----------
+    graph: the edges (and the default poses).
+    poses: (N, 3) poses to linearise at; None: the graph's.
+
+    Returns
+    -------
+    (residuals (E, 3), the SE(2) logarithm (m, m, rad); chi2 (E,); Jacobians (E, 3, 3)
+    w.r.t. x_i; Jacobians (E, 3, 3) w.r.t. x_j).
     """
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
     return _linearize(poses, graph.edge_from, graph.edge_to, graph.measurements,
@@ -172,7 +244,7 @@ def optimize(graph: PoseGraph, phi: float | None, iterations: int = 50,
              step_tolerance: float = 1e-10, initial_damping: float = 1e-6,
              system: SparseSystem | None = None, relative_tolerance: float = 0.0,
              absolute_tolerance: float = 0.0) -> OptimizationResult:
-    """Optimize `graph` from its poses with DCS parameter `phi` (None: plain least squares).
+    """Optimize `graph` from its poses with a DCS parameter.
 
     Levenberg-Marquardt on the robust cost: each iteration reweights loop closures by s^2 at
     the current estimate, solves the damped normal equations with a sparse LU factorisation in
@@ -185,9 +257,28 @@ def optimize(graph: PoseGraph, phi: float | None, iterations: int = 50,
     most `absolute_tolerance` (on this cost, twice GTSAM's error; 0 leaves a criterion off).
     Fixed vertices stay put; if none is fixed the first vertex is held as the gauge.
     A component of the graph without a fixed vertex is held near its initial guess by the
-    damping alone. Raises ValueError for a non-positive phi or singular normal equations
+    damping alone.
+
+    Parameters
+    ----------
+    graph: the graph; its poses are the initial guess.
+    phi: the DCS parameter Phi (> 0); None: plain least squares.
+    iterations: at most this many iterations, each one reweighting and one accepted step
+        (after as many damped solves as it takes).
+    step_tolerance: converged once the largest step component (m or rad) is below this.
+    initial_damping: the first damping, times the largest diagonal entry of the normal
+        equations; it grows tenfold per rejected step and shrinks tenfold per accepted one.
+    system: `SparseSystem(graph)`, to share the sparsity analysis across calls; None: a new
+        one.
+    relative_tolerance: converged once an accepted step lowers the cost by at most this
+        fraction of it (0: off).
+    absolute_tolerance: converged once an accepted step lowers the cost by at most this
+        (0: off).
+
+    Returns
+    -------
+    The OptimizationResult. ValueError for a non-positive phi or singular normal equations
     (no edge constrains the free vertices).
-    `system` (from `SparseSystem(graph)`) lets repeated calls share the sparsity analysis.
     """
     if phi is not None and not phi > 0.0:
         raise ValueError(f'phi must be positive, got {phi}')

@@ -75,7 +75,16 @@ class PoseGraph:
         return np.abs(self.edge_from - self.edge_to) != 1
 
     def with_poses(self, poses: np.ndarray) -> 'PoseGraph':
-        """The same edges with another estimate of the poses (e.g. another initial guess)."""
+        """The same edges with another estimate of the poses (e.g. another initial guess).
+
+        Parameters
+        ----------
+        poses: (N, 3) poses (x, y, theta), one per vertex.
+
+        Returns
+        -------
+        A new PoseGraph; ValueError unless `poses` are N finite poses.
+        """
         return replace(self, poses=poses)
 
     def odometry_chain(self) -> np.ndarray:
@@ -85,6 +94,10 @@ class PoseGraph:
         by the first odometry edge between them (inverted when it points backwards). A pose
         without an odometry edge to its predecessor keeps its current estimate relative
         to that predecessor.
+
+        Returns
+        -------
+        (N, 3) poses, the first the graph's first pose.
         """
         steps = se2.relative(self.poses[:-1], self.poses[1:])
         odometry = ~self.is_loop_closure
@@ -125,12 +138,30 @@ def _check_edges(count: int, edge_from: np.ndarray, edge_to: np.ndarray,
 
 
 def information_upper(information: np.ndarray) -> np.ndarray:
-    """(E, 6) upper triangles (I11 I12 I13 I22 I23 I33) of (E, 3, 3) information matrices."""
+    """The upper triangles of information matrices, as constraint rows carry them.
+
+    Parameters
+    ----------
+    information: (E, 3, 3) symmetric information matrices.
+
+    Returns
+    -------
+    (E, 6) float rows I11 I12 I13 I22 I23 I33.
+    """
     return np.asarray(information, dtype=np.float64)[:, _UPPER[0], _UPPER[1]]
 
 
 def information_from_upper(upper: np.ndarray) -> np.ndarray:
-    """(E, 3, 3) symmetric matrices from (E, 6) upper triangles."""
+    """Symmetric matrices from their upper triangles (information_upper undone).
+
+    Parameters
+    ----------
+    upper: (E, 6) rows I11 I12 I13 I22 I23 I33.
+
+    Returns
+    -------
+    (E, 3, 3) symmetric float matrices (not checked to be positive definite).
+    """
     upper = np.asarray(upper, dtype=np.float64)
     matrices = np.zeros((upper.shape[0], 3, 3))
     matrices[:, _UPPER[0], _UPPER[1]] = upper
@@ -140,21 +171,52 @@ def information_from_upper(upper: np.ndarray) -> np.ndarray:
 
 def constraint_rows(stamp_from: np.ndarray, stamp_to: np.ndarray, measurements: np.ndarray,
                     information: np.ndarray) -> np.ndarray:
-    """(E, 11) rows laid out as CONSTRAINT_FIELDS."""
+    """The constraint rows of edges between stamped keyframes.
+
+    Parameters
+    ----------
+    stamp_from, stamp_to: (E,) stamps (s) of each edge's two keyframes.
+    measurements: (E, 3) the pose (dx, dy, dtheta) of `to` in the frame of `from` (m, rad).
+    information: (E, 3, 3) symmetric information matrices.
+
+    Returns
+    -------
+    (E, 11) rows laid out as CONSTRAINT_FIELDS (unchecked: see check_constraint_rows).
+    """
     return np.column_stack([stamp_from, stamp_to, measurements, information_upper(information)])
 
 
 def split_constraint_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                       np.ndarray]:
-    """(stamp_from (E,), stamp_to (E,), measurements (E, 3), information (E, 3, 3)) of rows."""
+    """The parts of constraint rows (constraint_rows undone).
+
+    Parameters
+    ----------
+    rows: (E, 11) float rows laid out as CONSTRAINT_FIELDS.
+
+    Returns
+    -------
+    (stamp_from (E,), stamp_to (E,), measurements (E, 3), information (E, 3, 3)); the
+    first three are views of `rows`.
+    """
     stamps = rows[:, _STAMPS]
     return (stamps[:, 0], stamps[:, 1], rows[:, _MEASUREMENT],
             information_from_upper(rows[:, _UPPER_TRIANGLE]))
 
 
 def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
-    """Rows as a float (E, 11) array; ValueError on a wrong shape, non-finite values, an edge
-    from a stamp to itself, or an information matrix that is not symmetric positive definite."""
+    """Constraint rows checked before they become edges.
+
+    Parameters
+    ----------
+    rows: (E, 11) rows laid out as CONSTRAINT_FIELDS (anything np.asarray takes).
+
+    Returns
+    -------
+    The rows as a float (E, 11) array. ValueError naming the first bad row on a wrong shape,
+    non-finite values, information entries beyond MAX_INFORMATION, an edge from a stamp to
+    itself, or an information matrix that is not positive definite.
+    """
     rows = np.asarray(rows, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] != CONSTRAINT_WIDTH:
         raise ValueError(f'constraint rows must have shape (E, {CONSTRAINT_WIDTH}), '
@@ -182,11 +244,19 @@ def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
 
 
 def tuning_problem(graph: PoseGraph) -> str | None:
-    """Why DCS tuning of `graph` could not be honest, None when it can be tuned.
+    """Why DCS tuning of `graph` could not be honest.
 
     Refused: a disconnected graph (the parts float freely against each other, any Phi gives
     some map), one without loop closures (DCS scales only those: every Phi gives the same
     map), and information entries beyond MAX_INFORMATION (the solve overflows or drowns).
+
+    Parameters
+    ----------
+    graph: the graph the Phi search would run on.
+
+    Returns
+    -------
+    The first reason, a sentence for the user; None when it can be tuned.
     """
     # scipy.sparse only where it is used: `check` imports this package through the
     # configuration (TuningSettings) and tunes nothing

@@ -15,7 +15,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +33,7 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 @dataclass(frozen=True)
 class TuningSettings(Settings):
-    """Search range and resolution and the test.
+    """Search range and resolution of the Phi search and its DCS solves.
 
     The range is the original optimizer tool's; its grid had 40 steps. 20 steps (0.2 apart in
     sqrt(Phi)) found the same Phi* region on eleven built graphs (Intel and Freiburg 079, 0 to
@@ -73,7 +73,6 @@ class TuningSettings(Settings):
     initial_damping: float = parameter(
         1e-9, "a DCS solve's first damping, times the largest normal-equation diagonal", '',
         (1e-16, 1.0))
-    parameters: ConsistencyParameters = field(default_factory=ConsistencyParameters)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -82,7 +81,13 @@ class TuningSettings(Settings):
             raise ValueError(f'need 0 < phi_min < phi_max, got {self.phi_min}, {self.phi_max}')
 
     def grid(self) -> np.ndarray:
-        """The Phi values of the grid, increasing."""
+        """The Phi values of the grid.
+
+        Returns
+        -------
+        (grid_steps,) Phi values from phi_min to phi_max, increasing, evenly spaced in
+        sqrt(Phi) when `sqrt_grid`, else in Phi.
+        """
         if self.sqrt_grid:
             return np.linspace(math.sqrt(self.phi_min), math.sqrt(self.phi_max),
                                self.grid_steps) ** 2
@@ -120,6 +125,14 @@ class InconsistencyProfile:
     whose relative pose stayed within `reuse_tolerance` are not measured again). Every DCS solve
     starts from the graph's initial guess, so the solution at each Phi does not depend on the
     order of evaluation.
+
+    Parameters
+    ----------
+    graph: the pose graph; every solve starts from its poses.
+    ranges: (N, K) the scan of every vertex (m).
+    model: the sensor model of the scans.
+    laser_offset: (3,) the laser's pose (x, y, theta) in the vertex frame.
+    settings: the search's settings (the solves' and the reuse of measures).
     """
 
     def __init__(self, graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
@@ -134,15 +147,43 @@ class InconsistencyProfile:
         self._measured: MeasuredPairs | None = None
 
     def sensor_poses(self, poses: np.ndarray) -> np.ndarray:
-        """Laser poses (N, 3) of the vertices at `poses`."""
+        """The laser poses of the vertices at `poses`.
+
+        Parameters
+        ----------
+        poses: (N, 3) vertex poses.
+
+        Returns
+        -------
+        (N, 3) laser poses, `laser_offset` composed onto each.
+        """
         return se2.compose(poses, self.laser_offset)
 
     def scans_at(self, poses: np.ndarray) -> ScanSet:
-        """The graph's scans with the vertices at `poses`."""
+        """The graph's scans with the vertices at `poses`.
+
+        Parameters
+        ----------
+        poses: (N, 3) vertex poses (e.g. an optimization's).
+
+        Returns
+        -------
+        The ScanSet of the N scans placed there.
+        """
         return self.scans.with_poses(self.sensor_poses(poses))
 
     def evaluate(self, phi: float) -> Evaluation:
-        """M(Phi) and its optimization (cached)."""
+        """M(Phi) and its optimization (cached).
+
+        Parameters
+        ----------
+        phi: the DCS parameter Phi (> 0).
+
+        Returns
+        -------
+        The Evaluation, the same object on later calls. ValueError when the normal equations
+        are singular.
+        """
         return self.evaluate_many([phi])[0]
 
     def evaluate_many(self, phis: np.ndarray, progress: Progress | None = None,
@@ -151,6 +192,18 @@ class InconsistencyProfile:
 
         The measure kernel is itself parallel, so running it from several threads at once
         would only contend for the same cores.
+
+        Parameters
+        ----------
+        phis: the Phi values (> 0); each new value is solved once, cached ones not again.
+        progress: progress(done, total), called after each new evaluation.
+        done: evaluations already counted by the caller (progress counts on from there).
+        total: the total passed to progress; None: the number of new values.
+
+        Returns
+        -------
+        One Evaluation per entry of `phis`, in their order. ValueError when the normal
+        equations are singular.
         """
         phis = [float(phi) for phi in phis]
         new = [phi for phi in dict.fromkeys(phis) if phi not in self._cache]
@@ -164,12 +217,23 @@ class InconsistencyProfile:
         return [self._cache[phi] for phi in phis]
 
     def profile(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every evaluated (Phi, M(Phi)), sorted by Phi."""
+        """Every evaluated (Phi, M(Phi)).
+
+        Returns
+        -------
+        (phi (M,), value (M,)), sorted by Phi; value inf where the solve failed.
+        """
         phis = np.array(sorted(self._cache))
         return phis, np.array([self._cache[phi].value for phi in phis])
 
     def best(self) -> Evaluation:
-        """The evaluation with the smallest M(Phi) so far (the smaller Phi on ties)."""
+        """The best evaluation so far.
+
+        Returns
+        -------
+        The evaluation with the smallest M(Phi) (the smaller Phi on ties); ValueError before
+        the first.
+        """
         return min(self._cache.values(), key=lambda item: (item.value, item.phi))
 
     def _solve(self, phi: float) -> OptimizationResult:
@@ -198,13 +262,24 @@ class MeasuredPairs:
 
 def measure_moved(scans: ScanSet, pairs: np.ndarray, previous: MeasuredPairs | None,
                   tolerance: float) -> MeasuredPairs:
-    """The measures of `pairs` (sorted) on `scans`, measuring only the pairs that are new or
-    whose end points moved by more than `tolerance` relative to each other since `previous`.
+    """The measures of `pairs` on `scans`, measuring only the pairs that are new or whose end
+    points moved by more than `tolerance` relative to each other since `previous`.
 
     With A = (t, theta) the pose of j's sensor in i's, an end point of j within range r of its
     sensor moves in i's frame by at most |dt| + |dtheta| r, one of i by at most
     |dt| + |dtheta| (|t| + r): the larger bound decides. Reused pairs keep the relative pose
     they were measured at, so reuse never drifts.
+
+    Parameters
+    ----------
+    scans: the scans, placed on the map to measure.
+    pairs: (P, 2) scan index pairs (i < j), sorted (as candidate_pairs gives them).
+    previous: the measures of an earlier map of the same scans; None: measure every pair.
+    tolerance: the largest movement (m) of an end point at which a pair is reused.
+
+    Returns
+    -------
+    The MeasuredPairs of `pairs`, in their order, keeping no largest distances.
     """
     poses = scans.sensor_poses
     relative = se2.relative(poses[pairs[:, 0]], poses[pairs[:, 1]])
@@ -235,16 +310,30 @@ def measure_moved(scans: ScanSet, pairs: np.ndarray, previous: MeasuredPairs | N
 def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
              laser_offset: np.ndarray = (0.0, 0.0, 0.0),
              settings: TuningSettings = TuningSettings(),
+             parameters: ConsistencyParameters = ConsistencyParameters(),
              progress: Progress | None = None,
              profile: InconsistencyProfile | None = None) -> TuningResult:
     """Find Phi* = argmin M(Phi) on [phi_min, phi_max] and test the map at Phi*.
 
-    `ranges (N, K)` is the scan of every vertex, taken by a laser at `laser_offset` in the
-    vertex frame. `progress(done, total)` is called after each evaluation (the total grows by
-    the refinement's estimate). Pass `profile` (built on the same graph, scans and settings)
-    to share evaluations with the caller, e.g. to look at Phi = 1 afterwards without solving
-    again. Raises ValueError when the graph cannot be solved (no edge constrains the free
-    vertices).
+    Parameters
+    ----------
+    graph: the pose graph; every solve starts from its poses.
+    ranges: (N, K) the scan of every vertex (m).
+    model: the sensor model of the scans.
+    laser_offset: (3,) the laser's pose (x, y, theta) in the vertex frame.
+    settings: the search's settings.
+    parameters: the statistical test's parameters, with which the map at Phi* is tested
+        (its local scales fitted on the odometry chain).
+    progress: progress(done, total), called after each evaluation; the total is the grid,
+        the refinement's estimate and the test.
+    profile: an InconsistencyProfile built on the same graph, scans and settings, to share
+        evaluations with the caller (e.g. to look at Phi = 1 afterwards without solving
+        again); None: a new one.
+
+    Returns
+    -------
+    The TuningResult. ValueError when the graph cannot be solved (no edge constrains the
+    free vertices).
     """
     profile = profile or InconsistencyProfile(graph, ranges, model, laser_offset, settings)
     grid = settings.grid()
@@ -255,7 +344,7 @@ def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
     best = profile.best()
     reference = profile.scans_at(graph.odometry_chain())
     consistency = check_consistency(profile.scans_at(best.optimization.poses),
-                                    settings.parameters, reference_scans=reference)
+                                    parameters, reference_scans=reference)
     if progress is not None:
         progress(total, total)
     phis, values = profile.profile()

@@ -6,13 +6,15 @@ import pytest
 
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningSettings, measure_moved,
                                               optimize, tune_dcs)
-from map_consistency_ros.core.consistency import check_consistency
+from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.geometry import candidate_pairs, pair_measures_naive, se2
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.datasets import BuildSettings, build_dataset
 
 # flat_tolerance=0: the golden section refines to the tolerance wherever it lands.
 SEARCH = TuningSettings(grid_steps=5, tolerance=0.05, workers=1, flat_tolerance=0.0)
+# not the defaults: the search must judge with the parameters it is given
+TEST = ConsistencyParameters(alpha=0.2)
 
 
 @pytest.fixture(scope='module')
@@ -30,8 +32,8 @@ def intel_excerpt(shared_data):
 def tuned(intel_excerpt):
     calls = []
     profile = InconsistencyProfile(*intel_excerpt, settings=SEARCH)
-    result = tune_dcs(*intel_excerpt, settings=SEARCH, progress=lambda done, total:
-                      calls.append((done, total)), profile=profile)
+    result = tune_dcs(*intel_excerpt, settings=SEARCH, parameters=TEST,
+                      progress=lambda done, total: calls.append((done, total)), profile=profile)
     return result, profile, calls
 
 
@@ -71,11 +73,12 @@ def test_the_search_returns_the_smallest_evaluated_m_and_refines_around_it(tuned
 def test_the_verdict_is_the_test_on_the_map_at_phi_star(tuned):
     result, profile, _ = tuned
     np.testing.assert_array_equal(result.poses, profile.evaluate(result.phi).optimization.poses)
-    expected = check_consistency(profile.scans_at(result.poses), SEARCH.parameters,
+    expected = check_consistency(profile.scans_at(result.poses), TEST,
                                  reference_scans=profile.scans_at(
                                      profile.graph.odometry_chain()))
     np.testing.assert_array_equal(result.consistency.inconsistent, expected.inconsistent)
     assert result.consistent == expected.consistent
+    assert result.consistency.parameters == TEST
     assert result.average_inconsistency <= profile.evaluate(1.0).value
 
 
