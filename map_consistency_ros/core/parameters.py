@@ -170,8 +170,8 @@ def _specs(settings_class: type) -> tuple[ParameterSpec, ...]:
 
 
 def specs(settings_class: type) -> list[ParameterSpec]:
-    """The parameters of a settings dataclass, in field order (fields without metadata,
-    e.g. nested settings, are not parameters).
+    """The parameters of a settings dataclass, in field order (a field declared without
+    `parameter(...)` is no parameter).
 
     Parameters
     ----------
