@@ -124,8 +124,10 @@ class MonitorSnapshot:
         Returns
         -------
         A ScanSet of the N keyframes in stamp order, the laser at `laser_offset` from each
-        pose. Needs at least one keyframe (`result` not None).
+        pose. ValueError before the first keyframe (`result` None): no scan, no beam geometry.
         """
+        if self.model is None:
+            raise ValueError('no keyframes yet: the snapshot holds no scan to place')
         return ScanSet.from_ranges(self.ranges, sensor_poses(self.poses, self.laser_offset),
                                    self.model)
 

@@ -430,3 +430,10 @@ def test_settings_are_validated():
                 dict(move_tolerance=np.inf), dict(max_partners=-1)]:
         with pytest.raises(ValueError):
             MonitorSettings(**bad)
+
+
+def test_a_snapshot_before_any_keyframe_says_it_has_no_scans_to_place():
+    snapshot = ConsistencyMonitor().evaluate()
+    assert snapshot.result is None and snapshot.keyframe_count == 0
+    with pytest.raises(ValueError, match='no keyframes'):
+        snapshot.scans()
