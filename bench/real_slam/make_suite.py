@@ -17,7 +17,7 @@ previous one wrote in --work (default /tmp/real_slam_work):
 
   PYTHONPATH=. python bench/real_slam/make_suite.py --stages rawlog slam convert label calibrate
 
-All eight runs took about 40 min of MRPT time on a loaded 2-core machine (Intel with 30
+All twelve runs took about 61 min of MRPT time on a loaded 2-core machine (Intel with 30
 particles alone 21 min, see labels.json slam_seconds). RBPF draws random samples, so a rerun
 need not give identical maps.
 """
@@ -89,6 +89,11 @@ RUNS = [
     Run('fr079_rbpf_p1', 'fr079', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 1}),
     Run('intel_rbpf_p5', 'intel', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 5}),
     Run('fr079_rbpf_p5', 'fr079', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 5}),
+    Run('intel_rbpf_p10', 'intel', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 10}),
+    Run('fr079_rbpf_p10', 'fr079', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 10}),
+    Run('intel_rbpf_p15', 'intel', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 15},
+        time_limit=3600.0),
+    Run('fr079_rbpf_p15', 'fr079', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 15}),
     Run('fr079_rbpf_p30', 'fr079', 'rbpf-slam', RBPF_CONFIG, {'sampleSize': 30},
         full_density=True),
     # slowest: each step registers the scan against 30 growing point maps
