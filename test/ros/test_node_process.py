@@ -103,6 +103,14 @@ def _until(condition: Callable[[], object], seconds: float = TIMEOUT,
             step()
 
 
+def _matched(*publishers) -> None:
+    """Wait until every publisher reaches a subscriber: a message published before discovery
+    matched the two ends is lost, and a test that counts what the node took would count it."""
+    _until(lambda: all(publisher.get_subscription_count() for publisher in publishers))
+    assert all(publisher.get_subscription_count() for publisher in publishers), \
+        'the node never subscribed'
+
+
 def _stop(process: subprocess.Popen) -> tuple[float, str]:
     """SIGINT; seconds until the process ended and the rest of its output."""
     start = time.monotonic()
@@ -250,6 +258,7 @@ def test_sigint_during_a_retune_answers_the_caller_and_ends_cleanly(ros_env, sha
                                             'constraints', 10)
         retune = node.create_client(Trigger, '/map_consistency/retune_dcs')
         assert retune.wait_for_service(timeout_sec=TIMEOUT)
+        _matched(scan, path, constraints)
         stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
         for index in range(SCANS):
             scan.publish(messages.scan_message(message_class, stamps[index], log.ranges[index],
@@ -300,6 +309,7 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
         scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
         check = node.create_client(Trigger, '/map_consistency/check')
         assert check.wait_for_service(timeout_sec=TIMEOUT)
+        _matched(scan)
         for index in range(3):
             scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
                                                log.ranges[index], sensor_model(log)))
@@ -335,6 +345,7 @@ def _send_intel_map(node: Node, statuses: list, shared_data) -> None:
     scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 100)
     trajectory = node.create_publisher(Path, 'trajectory', 10)
     _until(lambda: statuses)
+    _matched(scan, trajectory)
     for index in range(SCANS):
         scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
                                            log.ranges[index], model))
@@ -467,6 +478,7 @@ def test_staleness_is_measured_on_the_node_clock(ros_env, shared_data):
         clock = node.create_publisher(Clock, '/clock', 10)
         scan = node.create_publisher(message_class(messages.SCAN_TYPE), 'scan', 10)
         _until(lambda: statuses)
+        _matched(clock, scan)
 
         def tick(seconds: float) -> None:
             clock.publish(Clock(clock=messages.time_message(message_class, seconds)))
