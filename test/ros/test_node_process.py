@@ -310,16 +310,26 @@ def test_kernels_that_fail_to_load_are_reported_and_services_answer(ros_env, sha
         check = node.create_client(Trigger, '/map_consistency/check')
         assert check.wait_for_service(timeout_sec=TIMEOUT)
         _matched(scan)
-        for index in range(3):
-            scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
-                                               log.ranges[index], sensor_model(log)))
-        _until(lambda: statuses
-               and statuses[-1].message.endswith('; 3 scans queued unprocessed'))
+        sent = []
+
+        def queued() -> int:
+            words = statuses[-1].message.split('; ')[-1].split() if statuses else []
+            return int(words[0]) if words and words[0].isdigit() else 0
+
+        def send() -> None:  # the node's scans are best effort: one may be lost while the
+            if queued() < 3 and len(sent) < 100:  # two ends of discovery still match
+                index = len(sent)
+                scan.publish(messages.scan_message(message_class, float(log.timestamps[index]),
+                                                   log.ranges[index], sensor_model(log)))
+                sent.append(index)
+
+        _until(lambda: queued() >= 3, step=send)
         status = statuses[-1]
         assert status.level == DiagnosticStatus.ERROR
+        assert 3 <= queued() <= len(sent), (status.message, len(sent))
         assert status.message == ('not monitoring: loading the compiled kernels failed '
-                                  '(OSError: kernel cache unreadable); 3 scans queued '
-                                  'unprocessed'), status.message
+                                  f'(OSError: kernel cache unreadable); {queued()} scans '
+                                  'queued unprocessed'), status.message
         assert {kv.key: kv.value for kv in status.values}['ready'] == 'failed'
         start = time.monotonic()
         answer = check.call_async(Trigger.Request())
