@@ -7,7 +7,9 @@ Invariants:
 - a slot's stamp and ranges never change once appended (views of them stay valid); its pose
   changes when the trajectory moves it, its incremental pose never;
 - `order()` holds the slots in stamp order (stable for equal stamps) at every moment;
-- the folded stamps are sorted and are no keyframe's.
+- the folded stamps are sorted and are no keyframe's;
+- `version` counts the stamps ever added (keyframes and folded scans): `added_since(v)` holds
+  every stamp a result computed at version v has not seen.
 """
 from __future__ import annotations
 
@@ -18,6 +20,10 @@ from map_consistency_ros.core.geometry import read_only, with_rows
 # A trajectory pose's slot: its keyframe's, or one of these.
 NO_SCAN = -1  # no scan registered for it (yet)
 FOLDED = -2  # its scan was folded into the previous viewpoint (core/geometry/_viewpoints.py)
+
+# Stamps are seconds since an epoch (1.7e9 on ROS time, where a float's step is 2.4e-7 s):
+# the slack covers the rounding of the differences that the reach of refresh_slots adds up.
+_STAMP_SLACK = 1e-5
 
 
 def match_stamps(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
@@ -85,6 +91,20 @@ def _claimed_twice(slots: np.ndarray, stamps: np.ndarray, slot_stamps: np.ndarra
     return losing
 
 
+def _within(stamps: np.ndarray, centres: np.ndarray, reach: float) -> np.ndarray:
+    """Indices (sorted, unique) of the sorted `stamps` within `reach` of any of `centres`."""
+    low = np.searchsorted(stamps, centres - reach, side='left')
+    high = np.searchsorted(stamps, centres + reach, side='right')
+    keep = high > low
+    low, high = low[keep], high[keep]
+    if low.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    lengths = high - low
+    # the runs low[k]..high[k]-1 laid end to end, then merged
+    starts = np.repeat(low - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
+    return np.unique(starts + np.arange(lengths.sum()))
+
+
 class Keyframes:
     """Growable per-keyframe arrays indexed by slot, and the folded scans' stamps.
 
@@ -103,6 +123,7 @@ class Keyframes:
         # slots in stamp order, kept: every scan and every trajectory is matched against them
         self._order = np.zeros(0, dtype=np.int64)
         self.folded = np.zeros(0)  # stamps of the scans folded into their previous viewpoint
+        self._added: list[float] = []  # every stamp added, keyframe or folded, in that order
 
     @property
     def beams(self) -> int:
@@ -133,6 +154,7 @@ class Keyframes:
         self.stamps[slot], self.poses[slot], self.incremental[slot] = stamp, pose, incremental
         self.ranges[slot] = ranges
         self.count += 1
+        self._added.append(float(stamp))
         if self._order.size == slot and (slot == 0 or stamp >= self.stamps[self._order[-1]]):
             self._order = np.append(self._order, slot)  # the usual case: in stamp order
         else:
@@ -148,6 +170,25 @@ class Keyframes:
         """
         if stamps:
             self.folded = np.sort(np.concatenate([self.folded, stamps]))
+            self._added.extend(float(stamp) for stamp in stamps)
+
+    @property
+    def version(self) -> int:
+        """How many stamps (keyframes and folded scans) the store has taken so far."""
+        return len(self._added)
+
+    def added_since(self, version: int) -> np.ndarray:
+        """The stamps taken after `version`.
+
+        Parameters
+        ----------
+        version: an earlier value of `version`.
+
+        Returns
+        -------
+        (A,) seconds, keyframes' and folded scans' alike, in the order they were taken.
+        """
+        return np.array(self._added[version:], dtype=np.float64)
 
     def order(self) -> np.ndarray:
         """The slots in stamp order.
@@ -215,6 +256,40 @@ class Keyframes:
             slots[_claimed_twice(slots, stamps, self.stamps)] = NO_SCAN
         if self.folded.size:
             slots[self._folded_match(stamps) & (slots == NO_SCAN)] = FOLDED
+        return slots
+
+    def refresh_slots(self, stamps: np.ndarray, slots: np.ndarray,
+                      changed: np.ndarray) -> np.ndarray:
+        """`trajectory_slots(stamps)` from an earlier result, recomputed only where it can differ.
+
+        A pose's slot depends only on the keyframe and folded stamps within the tolerance of
+        its own and on the poses competing for its keyframe (within the tolerance of it): a
+        new stamp can change the poses within 3 tolerances of it (one that loses its old
+        keyframe to the new one frees that keyframe for a neighbour), and their competitors lie
+        within 2 more. Those are recomputed among themselves; every other slot stands.
+
+        Parameters
+        ----------
+        stamps: (M,) the trajectory's pose stamps, sorted, seconds.
+        slots: (M,) `trajectory_slots(stamps)` as it was before the stamps `changed` were
+            known: changed poses of the trajectory may hold anything.
+        changed: (C,) seconds: keyframe and folded stamps added since `slots` was computed
+            (`added_since`), and the stamps of poses new to the trajectory.
+
+        Returns
+        -------
+        (M,) int64: equal to `trajectory_slots(stamps)` (a new array).
+        """
+        slots = np.array(slots, dtype=np.int64)
+        if changed.size == 0 or stamps.size == 0:
+            return slots
+        reach = 3.0 * self.tolerance + _STAMP_SLACK
+        affected = _within(stamps, changed, reach)
+        if affected.size == 0:
+            return slots
+        window = _within(stamps, changed, reach + 2.0 * self.tolerance + _STAMP_SLACK)
+        local = self.trajectory_slots(stamps[window])
+        slots[affected] = local[np.searchsorted(window, affected)]
         return slots
 
     def _folded_match(self, stamps: np.ndarray) -> np.ndarray:

@@ -173,8 +173,8 @@ class ConsistencyMonitor:
         self._keyframes: Keyframes | None = None  # from the first scan (its beam count) on
         self._path_stamps = np.zeros(0)
         self._path_poses = np.zeros((0, 3))
-        # _path_slots at a (keyframe count, folded count); a new trajectory clears it
-        self._path_slots_of: tuple[tuple[int, int], np.ndarray] | None = None
+        # the last _path_slots: (trajectory stamps, keyframe store, its version, slots)
+        self._path_slots_of: tuple[np.ndarray, Keyframes, int, np.ndarray] | None = None
         self._reset_pairs()
         self._result: ConsistencyResult | None = None
         # the last result with rank == slot, its pair cache and the cache's generation then:
@@ -283,32 +283,40 @@ class ConsistencyMonitor:
         What the update did (the test runs at the next `evaluate`). Raises ValueError when the
         arrays do not have those shapes.
         """
-        stamps = np.asarray(stamps, dtype=np.float64)
-        poses = np.asarray(poses, dtype=np.float64)
+        # copies: the monitor keeps them, whatever the caller does with its arrays
+        stamps = np.array(stamps, dtype=np.float64)
+        poses = np.array(poses, dtype=np.float64)
         if stamps.ndim != 1 or poses.shape != (stamps.size, 3):
             raise ValueError(f'a trajectory needs stamps (M,) and poses (M, 3), got shapes '
                              f'{stamps.shape} and {poses.shape}')
         warnings = []
-        finite = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
+        # column by column and no selection when nothing is dropped: a trajectory holds every
+        # pose of the run, and these passes are most of an update's cost that grows with it
+        x, y = poses[:, 0], poses[:, 1]
+        finite = (np.isfinite(stamps) & np.isfinite(x) & np.isfinite(y)
+                  & np.isfinite(poses[:, 2]))
         if not finite.all():
             warnings.append(f'{int((~finite).sum())} trajectory poses with non-finite values '
                             '(or an unusable quaternion) skipped')
+        extent = self.settings.max_pose_extent
         with np.errstate(invalid='ignore'):
-            absurd = finite & (np.abs(poses[:, :2]) > self.settings.max_pose_extent).any(axis=1)
+            absurd = finite & ((np.abs(x) > extent) | (np.abs(y) > extent))
         if absurd.any():
             warnings.append(f'{int(absurd.sum())} trajectory poses beyond max_pose_extent = '
-                            f'{self.settings.max_pose_extent:g} m skipped')
+                            f'{extent:g} m skipped')
         finite &= ~absurd
-        stamps, poses = stamps[finite], poses[finite]
-        order = np.argsort(stamps, kind='stable')
-        stamps, poses = stamps[order], poses[order]
-        duplicate = np.zeros(stamps.size, dtype=bool)
-        duplicate[1:] = np.diff(stamps) <= 0.0
-        if duplicate.any():
-            warnings.append(f'{int(duplicate.sum())} trajectory poses with a duplicated stamp '
-                            'skipped (the first is kept)')
-        self._path_stamps, self._path_poses = stamps[~duplicate], poses[~duplicate]
-        self._path_slots_of = None
+        if not finite.all():
+            stamps, poses = stamps[finite], poses[finite]
+        if not np.all(np.diff(stamps) > 0.0):  # else already in order, no stamp twice
+            order = np.argsort(stamps, kind='stable')
+            stamps, poses = stamps[order], poses[order]
+            duplicate = np.zeros(stamps.size, dtype=bool)
+            duplicate[1:] = np.diff(stamps) <= 0.0
+            if duplicate.any():
+                warnings.append(f'{int(duplicate.sum())} trajectory poses with a duplicated '
+                                'stamp skipped (the first is kept)')
+                stamps, poses = stamps[~duplicate], poses[~duplicate]
+        self._path_stamps, self._path_poses = stamps, poses
         return self._apply_path(tuple(warnings))
 
     def refresh(self) -> UpdateSummary:
@@ -436,15 +444,32 @@ class ConsistencyMonitor:
 
     def _path_slots(self) -> np.ndarray:
         """For each pose of the last trajectory, its keyframe slot, FOLDED or NO_SCAN (a
-        copy: callers fill in slots they register)."""
-        state = (self.keyframe_count, self._folded_count())
-        if self._path_slots_of is None or self._path_slots_of[0] != state:
-            # kept: the node asks on every scan whether one is pending
-            slots = (np.full(self._path_stamps.size, NO_SCAN, dtype=np.int64)
-                     if self._keyframes is None
-                     else self._keyframes.trajectory_slots(self._path_stamps))
-            self._path_slots_of = (state, slots)
-        return self._path_slots_of[1].copy()
+        copy: callers fill in slots they register).
+
+        Kept, because the node asks on every scan whether one is pending, and carried over:
+        a trajectory usually repeats the last one's poses and adds a few, so only the poses
+        near new stamps (new poses, new keyframes, newly folded scans) are matched again, and
+        the cost of an update does not grow with the length of the run."""
+        stamps, keyframes = self._path_stamps, self._keyframes
+        if keyframes is None:
+            return np.full(stamps.size, NO_SCAN, dtype=np.int64)
+        cached = self._path_slots_of
+        if cached is not None and cached[1] is keyframes:
+            old_stamps, _, version, old_slots = cached
+            if old_stamps is stamps and version == keyframes.version:
+                return old_slots.copy()
+            if old_stamps.size <= stamps.size and np.array_equal(stamps[:old_stamps.size],
+                                                                 old_stamps):
+                slots = np.full(stamps.size, NO_SCAN, dtype=np.int64)
+                slots[:old_slots.size] = old_slots
+                changed = np.concatenate([keyframes.added_since(version),
+                                          stamps[old_stamps.size:]])
+                slots = keyframes.refresh_slots(stamps, slots, changed)
+                self._path_slots_of = (stamps, keyframes, keyframes.version, slots)
+                return slots.copy()
+        slots = keyframes.trajectory_slots(stamps)
+        self._path_slots_of = (stamps, keyframes, keyframes.version, slots)
+        return slots.copy()
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
         start = time.perf_counter()
@@ -460,7 +485,7 @@ class ConsistencyMonitor:
         return self._last
 
     def _move_keyframes(self, path_slots: np.ndarray) -> np.ndarray:
-        known = path_slots >= 0
+        known = np.flatnonzero(path_slots >= 0)  # indices: a mask over (M, 3) costs more
         slots, targets = path_slots[known], self._path_poses[known]
         if slots.size == 0:
             return np.zeros(0, dtype=np.int64)

@@ -54,3 +54,49 @@ def test_the_scan_buffer_drops_the_oldest_stamp_and_matches_the_rest():
     assert matched[0] == 2.0 and math.isnan(matched[1]) and math.isnan(matched[2])
     np.testing.assert_array_equal(buffer.pop(3.0), np.full(3, 3.0))
     assert buffer.newest == 3.0 and len(buffer) == 1  # the newest ever added stays
+
+
+def test_refreshed_slots_equal_slots_matched_from_scratch():
+    """refresh_slots against trajectory_slots on crowded stamps: twins microseconds apart,
+    poses within the tolerance of two keyframes, folded scans, a trajectory that grows."""
+    generator = np.random.default_rng(5)
+    tolerance = 0.01
+    for trial in range(200):
+        # clusters of stamps closer than the tolerance, so claims and ties are everywhere
+        centres = np.sort(generator.uniform(0.0, 0.3, generator.integers(5, 40)))
+        stamps = np.unique(np.concatenate([centres, centres + generator.uniform(
+            -0.012, 0.012, centres.size)]))
+        keyframes = Keyframes(beams=3, tolerance=tolerance)
+        known = generator.permutation(stamps)[:stamps.size // 2]
+        shown = stamps[:generator.integers(1, stamps.size + 1)]
+        take = generator.uniform(size=known.size) < 0.5
+        for stamp in known[take]:
+            keyframes.append(float(stamp) + generator.choice([0.0, 0.004]), np.zeros(3),
+                             np.zeros(3), np.ones(3))
+        keyframes.fold([float(stamp) for stamp in known[~take][::2]])
+        version, before = keyframes.version, keyframes.trajectory_slots(shown)
+        for stamp in known[~take][1::2]:  # later keyframes and folded scans
+            if generator.uniform() < 0.5:
+                keyframes.append(float(stamp), np.zeros(3), np.zeros(3), np.ones(3))
+            else:
+                keyframes.fold([float(stamp)])
+        grown = stamps[:generator.integers(shown.size, stamps.size + 1)]
+        slots = np.full(grown.size, NO_SCAN)
+        slots[:shown.size] = before
+        changed = np.concatenate([keyframes.added_since(version), grown[shown.size:]])
+        refreshed = keyframes.refresh_slots(grown, slots, changed)
+        np.testing.assert_array_equal(refreshed, keyframes.trajectory_slots(grown),
+                                      err_msg=f'trial {trial}')
+
+
+def test_a_new_keyframe_frees_an_old_one_for_a_pose_three_tolerances_away():
+    # pose 1.9 holds keyframe 1.0 against pose 0.0, until keyframe 2.7 takes pose 1.9: then
+    # pose 0.0, 2.7 s from the new stamp, holds keyframe 1.0
+    keyframes = _store([1.0], tolerance=1.0)
+    stamps = np.array([0.0, 1.9])
+    before = keyframes.trajectory_slots(stamps)
+    assert before.tolist() == [NO_SCAN, 0]
+    version = keyframes.version
+    keyframes.append(2.7, np.zeros(3), np.zeros(3), np.ones(3))
+    refreshed = keyframes.refresh_slots(stamps, before, keyframes.added_since(version))
+    assert refreshed.tolist() == keyframes.trajectory_slots(stamps).tolist() == [0, 1]
