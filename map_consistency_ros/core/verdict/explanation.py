@@ -25,7 +25,7 @@ points are grouped into changed places and reported. `strict` keeps the paper's 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
@@ -118,6 +118,8 @@ class Misalignment:
     displacement: float  # metres, RMS end-point displacement the correction implies; NaN
     # when the region could not be registered (a gross error)
     pairs: int  # misaligned or unregistered pairs behind the region
+    # its size is measured: by its submaps' agreeing registrations or, beyond their reach, by
+    # registering the whole region onto its reference scans (_register_region)
     registered: bool
 
 
@@ -607,7 +609,8 @@ def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> boo
 def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
              moments: PointMoments, bad: np.ndarray, codes: np.ndarray,
              transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
-             flagged: np.ndarray, settings: ExplanationSettings) -> tuple[Misalignment, ...]:
+             flagged: np.ndarray, settings: ExplanationSettings,
+             registration: RegistrationSettings | None) -> tuple[Misalignment, ...]:
     """Misaligned regions from the explained pairs (rows `explained` of `result`)."""
     pairs = result.pairs[explained]
     on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
@@ -653,14 +656,60 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
                             or _spans_beyond_changes(scans, result, explained[rows],
                                                      settings))):
                 continue
-            correction = np.full(3, np.nan)
-            spread = np.full(3, np.nan)
-            displacement = math.nan
+            measured = _register_region(scans, result, moments, moved, reference, settings,
+                                        registration)
+            if measured is None:
+                correction, spread, displacement = np.full(3, np.nan), np.full(3, np.nan), math.nan
+            else:
+                correction, spread, displacement = measured
+                registered = True
         regions.append(Misalignment(scans=moved, reference_scans=reference,
                                     correction=correction, correction_std=spread,
                                     displacement=displacement, pairs=int(rows.size),
                                     registered=bool(registered)))
     return tuple(regions)
+
+
+# Coarse association gates (metres) before the local registration's own: a region beyond
+# local registration is displaced further than its submaps' gates reach (a turn of 5 degrees
+# moves points 20 m from its centre by 1.7 m), but registered as one, hundreds of scans onto
+# hundreds, its surfaces are many and spread enough to converge from gates this wide.
+_REGION_GATES = (3.0, 2.0, 1.0)
+
+
+def _register_region(scans: ScanSet, result: ConsistencyResult, moments: PointMoments,
+                     moved: np.ndarray, reference: np.ndarray, settings: ExplanationSettings,
+                     registration: RegistrationSettings | None
+                     ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The size of a region beyond local registration, measured by registering all its scans
+    as one submap onto all its reference scans.
+
+    Only a size: the region fails the map whatever this finds. A correction that does not
+    mend `min_resolved_fraction` of the region's failing overlaps, or that is within the
+    tolerance (local registrations would then have found it), measures nothing and gives None.
+
+    Returns
+    -------
+    (world transform (3,), its 1-sigma (3,), RMS displacement of the moved end points, metres)
+    or None.
+    """
+    registration = registration or RegistrationSettings()
+    gates = tuple(gate for gate in _REGION_GATES if gate > registration.gates[0])
+    wide = replace(registration, gates=gates + tuple(registration.gates))
+    order = np.concatenate([reference, moved])
+    task = np.array([[0, reference.size, reference.size, order.size]], dtype=np.int64)
+    found = register_submaps(surface_points(scans.endpoints[order], scans.valid[order]), task,
+                             wide)
+    if not found.determined[0]:
+        return None
+    correction = found.world_transforms()[0]
+    displacement = float(moments.pooled(moved).displacement(correction[None])[0])
+    if (not np.isfinite(displacement) or displacement <= settings.misalignment_tolerance
+            or _resolved_fraction(scans, result, moved, reference, correction)
+            < settings.min_resolved_fraction):
+        return None
+    spread = np.sqrt(np.diagonal(found.covariances[0]))
+    return correction, spread, displacement
 
 
 def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> np.ndarray:
@@ -860,7 +909,8 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     flagged = _cascaded(result, pairs, misaligned | beyond) | gross
     bad = misaligned | beyond | (unexplained & (gross[pairs[:, 0]] | gross[pairs[:, 1]]))
     regions = _regions(scans, result, rows, moments, bad, codes, transforms,
-                       registrations.covariances[task_of_pair], task_of_pair, flagged, settings)
+                       registrations.covariances[task_of_pair], task_of_pair, flagged, settings,
+                       registration)
     # The tolerance is the map's: a region fails it by the displacement of its own correction,
     # however far the single registrations behind it strayed.
     within = [region.registered and region.displacement <= settings.misalignment_tolerance

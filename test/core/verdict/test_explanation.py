@@ -296,16 +296,20 @@ def test_changed_places_join_points_through_neighbouring_cells():
     assert place_labels(points[:1], 0.3).tolist() == [0]
 
 
-def _displaced_log(path, every, rotation_deg, shift_m, pivot_fraction):
+def _displaced_log(path, every, rotation_deg, shift_m, pivot_fraction, with_truth=False):
     """Viewpoints of every `every`-th record of a log, everything after a record turned and
-    shifted rigidly (the same stretch of the building at any `every`)."""
+    shifted rigidly (the same stretch of the building at any `every`); with_truth: also the
+    viewpoints at their true poses."""
     log = carmen.read_carmen_log(path)
     poses = displace(log.laser_poses, int(pivot_fraction * log.scan_count), log.scan_count,
                      np.radians(rotation_deg), np.array([shift_m, 0.0]))
     rows = np.arange(0, log.scan_count, every)
     rows = rows[viewpoint_rows(poses[rows], 0.4, 0.4)]
-    return ScanSet.from_ranges(log.ranges[rows], poses[rows],
-                               carmen.sensor_model(log, max_range=8.0))
+    model = carmen.sensor_model(log, max_range=8.0)
+    scans = ScanSet.from_ranges(log.ranges[rows], poses[rows], model)
+    if not with_truth:
+        return scans
+    return scans, ScanSet.from_ranges(log.ranges[rows], log.laser_poses[rows], model)
 
 
 def test_a_region_within_the_tolerance_is_minor_and_does_not_fail_the_map(shared_data):
@@ -337,3 +341,24 @@ def test_a_turn_beyond_registration_at_a_seam_forms_a_region(shared_data):
     assert not assessment.consistent
     assert any(not region.registered and region.scans.min() >= 142
                and region.reference_scans.max() < 142 for region in assessment.misalignments)
+
+
+def test_a_region_beyond_local_registration_reports_its_size(shared_data):
+    # Freiburg 079 every 2nd scan turned 5 degrees after its middle: its submaps' corrections
+    # exceed what local registration trusts (0.5 m), so the region is beyond it; registered as
+    # one onto its reference scans it reports the displacement its end points really have.
+    scans, truth = _displaced_log(shared_data / 'fr079' / 'freiburg-079-corrected.log.gz', 2,
+                                  5.0, 0.0, 0.5, with_truth=True)
+    result = check_consistency(scans)
+    assessment = explain(scans, result)
+    assert not assessment.consistent
+    region = max(assessment.misalignments, key=lambda item: len(item.scans))
+    moved = scans.endpoints[region.scans][scans.valid[region.scans]]
+    true = truth.endpoints[region.scans][truth.valid[region.scans]]
+    true_rms = float(np.sqrt(np.mean(np.sum((moved - true) ** 2, axis=1))))
+    assert true_rms > 0.5
+    assert region.registered and region.displacement == pytest.approx(true_rms, rel=0.1)
+    assert abs(np.degrees(region.correction[2])) == pytest.approx(5.0, abs=0.5)
+    assert np.isfinite(region.correction_std).all()
+    # its submaps' own corrections were beyond what local registration trusts
+    assert assessment.class_counts()[UNREGISTERED] > 0
