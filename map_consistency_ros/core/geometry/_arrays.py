@@ -1,6 +1,7 @@
 """Arrays that grow by rows (the per-slot state of the monitor, the spatial index and the
-node's markers, grown by doubling so that appending stays amortized O(1)), and read-only views
-of arrays that their owner may still write (a ScanSet's arrays, the monitor's caches)."""
+node's markers, grown by doubling so that appending stays amortized O(1)), read-only views
+of arrays that their owner may still write (a ScanSet's arrays, the monitor's caches), and
+index ranges laid end to end."""
 from __future__ import annotations
 
 import numpy as np
@@ -40,3 +41,19 @@ def read_only(array: np.ndarray) -> np.ndarray:
     view = array.view()
     view.setflags(write=False)
     return view
+
+
+def spans(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The integers of the ranges [low_k, high_k) laid end to end, without a Python loop.
+
+    Parameters
+    ----------
+    low, high: (K,) integer bounds, high_k >= low_k.
+
+    Returns
+    -------
+    (the integers of every range, range 0's first (S,) int64; the k of each (S,) int64).
+    """
+    lengths = high - low
+    owner = np.repeat(np.arange(lengths.size), lengths)
+    return np.repeat(low - np.cumsum(lengths) + lengths, lengths) + np.arange(owner.size), owner

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from map_consistency_ros.core.geometry import read_only, with_rows
+from map_consistency_ros.core.geometry import read_only, spans, with_rows
 
 # A trajectory pose's slot: its keyframe's, or one of these.
 NO_SCAN = -1  # no scan registered for it (yet)
@@ -95,14 +95,7 @@ def _within(stamps: np.ndarray, centres: np.ndarray, reach: float) -> np.ndarray
     """Indices (sorted, unique) of the sorted `stamps` within `reach` of any of `centres`."""
     low = np.searchsorted(stamps, centres - reach, side='left')
     high = np.searchsorted(stamps, centres + reach, side='right')
-    keep = high > low
-    low, high = low[keep], high[keep]
-    if low.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    lengths = high - low
-    # the runs low[k]..high[k]-1 laid end to end, then merged
-    starts = np.repeat(low - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
-    return np.unique(starts + np.arange(lengths.sum()))
+    return np.unique(spans(low, high)[0])
 
 
 class Keyframes:

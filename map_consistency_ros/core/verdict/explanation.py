@@ -34,7 +34,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   Progress, check_consistency,
                                                   inconsistent_endpoints, pair_endpoints,
                                                   robust_statistic, statistics)
-from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2
+from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2, spans
 from map_consistency_ros.core.parameters import Choice, Settings, parameter
 from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
                                                             register_submaps, surface_points)
@@ -499,13 +499,6 @@ def longest_run(scans: np.ndarray, gap: int) -> int:
 _CONFIRM_SAMPLE = 36  # overlaps re-measured per registration: enough for a share, bounded
 
 
-def _spans(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The integers of the ranges [low_k, high_k) one after another, and the k of each."""
-    lengths = high - low
-    owner = np.repeat(np.arange(lengths.size), lengths)
-    return np.repeat(low - np.cumsum(lengths) + lengths, lengths) + np.arange(owner.size), owner
-
-
 def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The tested pairs between the reference and the query submap of each task (r0, r1, q0,
@@ -518,8 +511,8 @@ def _task_overlaps(result: ConsistencyResult, tasks: np.ndarray
     rows = np.concatenate([tested, tested])
     order = np.argsort(keys, kind='stable')
     keys, rows = keys[order], rows[order]
-    scan, task_of_scan = _spans(tasks[:, 0], tasks[:, 1])  # the reference scans of each task
-    picked, of_scan = _spans(np.searchsorted(keys, scan * count + tasks[task_of_scan, 2]),
+    scan, task_of_scan = spans(tasks[:, 0], tasks[:, 1])  # the reference scans of each task
+    picked, of_scan = spans(np.searchsorted(keys, scan * count + tasks[task_of_scan, 2]),
                              np.searchsorted(keys, scan * count + tasks[task_of_scan, 3]))
     task_ids = task_of_scan[of_scan]
     if picked.size:  # evenly thin each task's overlaps (contiguous per task) to the sample

@@ -3,7 +3,7 @@ import numpy as np
 
 import pytest
 
-from map_consistency_ros.core.geometry import read_only, with_rows
+from map_consistency_ros.core.geometry import read_only, spans, with_rows
 
 
 def test_rows_are_kept_and_the_new_ones_filled():
@@ -26,3 +26,13 @@ def test_a_read_only_view_follows_its_owner_who_may_still_write():
         view[0] = 1.0
     owner[0] = 5.0  # the owner keeps writing (appends past a cached view, for example)
     assert owner.flags.writeable and view[0] == 5.0
+
+
+def test_spans_lay_ranges_end_to_end_as_a_loop_would():
+    low, high = np.array([3, 7, 7, 0]), np.array([5, 7, 10, 2])
+    values, owners = spans(low, high)
+    expected = [(value, k) for k, (a, b) in enumerate(zip(low, high)) for value in range(a, b)]
+    assert values.tolist() == [value for value, _ in expected] == [3, 4, 7, 8, 9, 0, 1]
+    assert owners.tolist() == [k for _, k in expected] == [0, 0, 2, 2, 2, 3, 3]
+    empty_values, empty_owners = spans(np.zeros(0, np.int64), np.zeros(0, np.int64))
+    assert empty_values.size == 0 and empty_owners.size == 0
