@@ -437,3 +437,36 @@ def test_a_snapshot_before_any_keyframe_says_it_has_no_scans_to_place():
     assert snapshot.result is None and snapshot.keyframe_count == 0
     with pytest.raises(ValueError, match='no keyframes'):
         snapshot.scans()
+
+
+def test_trajectories_that_do_not_extend_the_last_one_are_matched_again(intel):
+    """A trajectory is usually the last one plus a few poses (its slots are carried over); one
+    that drops, reorders or shortens poses must be matched again: after every update each
+    keyframe stands at its pose in the latest trajectory that holds its stamp."""
+    stamps, ranges, poses, model = _by_stamp(intel)
+    count = 40
+    moved = poses[:count] + np.array([0.05, -0.03, 0.01])
+    trajectories = [
+        (stamps[:20], poses[:20]),
+        (stamps[:30], poses[:30]),  # extends it
+        (stamps[:30], moved[:30]),  # the same stamps, poses moved by a loop closure
+        (np.delete(stamps[:35], 10), np.delete(poses[:35], 10, axis=0)),  # a pose dropped
+        (stamps[:15], poses[:15]),  # shorter
+        (stamps[:count][::-1], moved[:count][::-1]),  # reversed: sorted again
+    ]
+    monitor = ConsistencyMonitor()
+    for index, (stamp, scan) in enumerate(zip(stamps[:count], ranges[:count])):
+        monitor.add_scan(stamp, scan, model)
+        if index == 25:  # scans keep arriving between trajectories
+            monitor.update_trajectory(*trajectories[0])
+    latest = {}  # stamp -> its pose in the latest trajectory holding it
+    for stamp, pose in zip(*trajectories[0]):
+        latest[float(stamp)] = pose
+    for path_stamps, path_poses in trajectories[1:]:
+        monitor.update_trajectory(path_stamps, path_poses)
+        for stamp, pose in zip(path_stamps, path_poses):
+            latest[float(stamp)] = pose
+        snapshot = monitor.evaluate()
+        assert snapshot.stamps.size > 10
+        expected = np.array([latest[float(stamp)] for stamp in snapshot.stamps])
+        np.testing.assert_allclose(snapshot.poses, expected)
