@@ -15,7 +15,8 @@ from map_consistency_ros.core.verdict.explanation import (CHANGE, MINOR, MISALIG
                                                           PointMoments, RegistrationCache,
                                                           agreeing_registrations, check_map,
                                                           corrections_confirmed, explain,
-                                                          longest_run, misaligned_endpoints,
+                                                          longest_run, longest_travel,
+                                                          misaligned_endpoints,
                                                           place_labels)
 from map_consistency_ros.core.verdict.reporting import (assessment_report, plain, result_report,
                                                         scan_names, to_json)
@@ -29,5 +30,6 @@ __all__ = [
     'scan_names', 'result_report', 'assessment_report', 'plain', 'to_json',
     # units the verdict is built from, tested on their own
     'point_grid', 'nearest_point', 'symmetric_inverse', 'PointMoments',
-    'agreeing_registrations', 'corrections_confirmed', 'longest_run', 'place_labels',
+    'agreeing_registrations', 'corrections_confirmed', 'longest_run', 'longest_travel',
+    'place_labels',
 ]

@@ -81,6 +81,10 @@ class ExplanationSettings(Settings):
     min_region_scans: int = parameter(
         3, 'consecutive keyframes a misaligned region must hold on each side (a stretch, not '
         'scans here and there)', 'scans', (1, 1000))
+    min_region_support: float = parameter(
+        5.0, 'surface a region must share with its reference scans, registered onto them as '
+        'one, for its correction to count (matched end points, 0.1 m apart); less leaves the '
+        'region unmeasured', 'm', (0.0, 1000.0))
     min_resolved_fraction: float = parameter(
         0.5, 'share of the failing overlaps between two submaps, and between a region and its '
         'reference scans, that a correction must mend, net of those it breaks', '', (0.0, 1.0))
@@ -496,6 +500,36 @@ def longest_run(scans: np.ndarray, gap: int) -> int:
     return int(np.diff(bounds).max())
 
 
+def longest_travel(scans: np.ndarray, gap: int, positions: np.ndarray, spacing: float) -> int:
+    """The longest run of scans joined by short steps, counted in viewpoints of travel.
+
+    A gross error displaces a stretch of the path: its extent is the travel along the run
+    (its scans' positions in index order), one viewpoint per `spacing` plus the run's first,
+    whatever the sampling. Turning on the spot adds none: one place, however many headings.
+
+    Parameters
+    ----------
+    scans: sorted scan indices.
+    gap: the largest step between index neighbours of one run.
+    positions: (N, 2) the positions of all scans, metres.
+    spacing: metres of travel per viewpoint (the test's viewpoint_spacing); 0 where every scan
+        is a viewpoint: the run's scans are counted then (longest_run).
+
+    Returns
+    -------
+    1 + floor(travel / spacing) of the run that travels furthest; 0 for no scans.
+    """
+    if scans.size == 0 or spacing <= 0.0:
+        return longest_run(scans, gap)
+    breaks = np.diff(scans) > gap
+    runs = np.cumsum(np.concatenate([[0], breaks]))
+    steps = np.hypot(*np.diff(positions[scans], axis=0).T)
+    steps[breaks] = 0.0  # a break between runs is no travel
+    travel = np.bincount(runs[1:], weights=steps, minlength=runs[-1] + 1)
+    # a hair of slack: a run of exactly k spacings counts k + 1 viewpoints
+    return 1 + int(np.floor(travel.max() / spacing + 1e-9))
+
+
 _CONFIRM_SAMPLE = 36  # overlaps re-measured per registration: enough for a share, bounded
 
 
@@ -623,6 +657,7 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
             continue  # scans out of place here and there, or a revisit seen from one scan
         registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
         registered = False
+        whole = None  # the whole region registered onto its reference, once it is needed
         if registered_rows.size * 2 >= rows.size:
             correction = _consensus(moments.pooled(moved), transforms[registered_rows])
             # A correction that its registrations do not confirm, or that does not mend the
@@ -636,21 +671,30 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
                 >= settings.min_registrations
                 and _resolved_fraction(scans, result, moved, reference, correction)
                 >= settings.min_resolved_fraction)
+            if registered:
+                # Submaps that share a sliver of surface with the reference (an object one
+                # visit saw, a doorway) can agree on a correction that the region as a whole
+                # does not bear: it must rest on enough shared surface, or it measures nothing.
+                whole = _register_region(scans, moved, reference, registration)
+                registered = whole.support >= settings.min_region_support
         if registered:
             spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
                                                    axis2=2), axis=0))
             displacement = float(moments.pooled(moved).displacement(correction[None])[0])
         else:
-            # beyond registration, no correction corroborates it: a displaced stretch of at
-            # least a block, spread wider than any change, that several registrations fail on
+            # beyond registration, no correction corroborates it: a displaced stretch of the
+            # path, at least a block of travel (a robot turning on the spot is one place),
+            # spread wider than any change, that several registrations fail on
             if (np.unique(task_of_pair[rows]).size < settings.min_registrations
-                    or longest_run(moved, settings.block) < settings.block
+                    or longest_travel(moved, settings.block, scans.sensor_poses[:, :2],
+                                      result.parameters.viewpoint_spacing) < settings.block
                     or not (_mostly_consecutive(pairs[rows], settings)
                             or _spans_beyond_changes(scans, result, explained[rows],
                                                      settings))):
                 continue
-            measured = _register_region(scans, result, moments, moved, reference, settings,
-                                        registration)
+            if whole is None:
+                whole = _register_region(scans, moved, reference, registration)
+            measured = _region_size(scans, result, moments, moved, reference, whole, settings)
             if measured is None:
                 correction, spread, displacement = np.full(3, np.nan), np.full(3, np.nan), math.nan
             else:
@@ -670,21 +714,23 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
 _REGION_GATES = (3.0, 2.0, 1.0)
 
 
-def _register_region(scans: ScanSet, result: ConsistencyResult, moments: PointMoments,
-                     moved: np.ndarray, reference: np.ndarray, settings: ExplanationSettings,
-                     registration: RegistrationSettings | None
-                     ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """The size of a region beyond local registration, measured by registering all its scans
-    as one submap onto all its reference scans.
+@dataclass(frozen=True)
+class _WholeRegion:
+    """A region's moved scans registered as one submap onto all its reference scans."""
 
-    Only a size: the region fails the map whatever this finds. A correction that does not
-    mend `min_resolved_fraction` of the region's failing overlaps, or that is within the
-    tolerance (local registrations would then have found it), measures nothing and gives None.
+    correction: np.ndarray  # (3,) world transform of the moved scans
+    covariance: np.ndarray  # (3, 3); inf where undetermined
+    support: float  # metres of moved surface matched at the solution; 0 where undetermined
 
-    Returns
-    -------
-    (world transform (3,), its 1-sigma (3,), RMS displacement of the moved end points, metres)
-    or None.
+
+def _register_region(scans: ScanSet, moved: np.ndarray, reference: np.ndarray,
+                     registration: RegistrationSettings | None) -> _WholeRegion:
+    """Register all of a region's moved scans, as one submap, onto all its reference scans.
+
+    The association gates start wider than local registration's (_REGION_GATES), so that a
+    region displaced beyond its submaps' reach converges too. Its support is the surface the
+    two sides share at the solution: the matched query end points, which are thinned to one
+    per `query_spacing`, times that spacing, whatever the scans' density.
     """
     registration = registration or RegistrationSettings()
     gates = tuple(gate for gate in _REGION_GATES if gate > registration.gates[0])
@@ -693,16 +739,36 @@ def _register_region(scans: ScanSet, result: ConsistencyResult, moments: PointMo
     task = np.array([[0, reference.size, reference.size, order.size]], dtype=np.int64)
     found = register_submaps(surface_points(scans.endpoints[order], scans.valid[order]), task,
                              wide)
-    if not found.determined[0]:
+    determined = bool(found.determined[0])
+    return _WholeRegion(correction=found.world_transforms()[0],
+                        covariance=found.covariances[0],
+                        support=(float(found.matched[0]) * registration.query_spacing
+                                 if determined else 0.0))
+
+
+def _region_size(scans: ScanSet, result: ConsistencyResult, moments: PointMoments,
+                 moved: np.ndarray, reference: np.ndarray, whole: _WholeRegion,
+                 settings: ExplanationSettings) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The size of a region beyond local registration, from its whole-region registration.
+
+    Only a size: the region fails the map whatever this finds. A correction on less than
+    `min_region_support` of shared surface, that does not mend `min_resolved_fraction` of the
+    region's failing overlaps, or that is within the tolerance (local registrations would then
+    have found it), measures nothing and gives None.
+
+    Returns
+    -------
+    (world transform (3,), its 1-sigma (3,), RMS displacement of the moved end points, metres)
+    or None.
+    """
+    if not whole.support or whole.support < settings.min_region_support:
         return None
-    correction = found.world_transforms()[0]
-    displacement = float(moments.pooled(moved).displacement(correction[None])[0])
+    displacement = float(moments.pooled(moved).displacement(whole.correction[None])[0])
     if (not np.isfinite(displacement) or displacement <= settings.misalignment_tolerance
-            or _resolved_fraction(scans, result, moved, reference, correction)
+            or _resolved_fraction(scans, result, moved, reference, whole.correction)
             < settings.min_resolved_fraction):
         return None
-    spread = np.sqrt(np.diagonal(found.covariances[0]))
-    return correction, spread, displacement
+    return whole.correction, np.sqrt(np.diagonal(whole.covariance)), displacement
 
 
 def _region_scans(misalignments: tuple[Misalignment, ...], scan_count: int) -> np.ndarray:
