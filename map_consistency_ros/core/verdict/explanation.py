@@ -495,9 +495,13 @@ def longest_run(scans: np.ndarray, gap: int) -> int:
     """
     if scans.size == 0:
         return 0
-    breaks = np.flatnonzero(np.diff(scans) > gap)
-    bounds = np.concatenate([[0], breaks + 1, [scans.size]])
-    return int(np.diff(bounds).max())
+    return int(np.bincount(_run_labels(scans, gap)).max())
+
+
+def _run_labels(scans: np.ndarray, gap: int) -> np.ndarray:
+    """(S,) the run of each of the sorted `scans` (S >= 1): 0, 1, ... in order; a step
+    longer than `gap` starts the next run."""
+    return np.concatenate([[0], np.cumsum(np.diff(scans) > gap)])
 
 
 def longest_travel(scans: np.ndarray, gap: int, positions: np.ndarray, spacing: float) -> int:
@@ -521,10 +525,9 @@ def longest_travel(scans: np.ndarray, gap: int, positions: np.ndarray, spacing: 
     """
     if scans.size == 0 or spacing <= 0.0:
         return longest_run(scans, gap)
-    breaks = np.diff(scans) > gap
-    runs = np.cumsum(np.concatenate([[0], breaks]))
+    runs = _run_labels(scans, gap)
     steps = np.hypot(*np.diff(positions[scans], axis=0).T)
-    steps[breaks] = 0.0  # a break between runs is no travel
+    steps[np.diff(runs) > 0] = 0.0  # a break between runs is no travel
     travel = np.bincount(runs[1:], weights=steps, minlength=runs[-1] + 1)
     # a hair of slack: a run of exactly k spacings counts k + 1 viewpoints
     return 1 + int(np.floor(travel.max() / spacing + 1e-9))
