@@ -10,17 +10,20 @@ from map_consistency_ros.core.consistency._baseline import (FREE, OCCUPIED, UNKN
                                                             map_statistic, pair_log_likelihoods,
                                                             traverse_cells)
 from map_consistency_ros.core.consistency._check import (ConsistencyParameters,
-                                                         ConsistencyResult, Progress,
+                                                         ConsistencyResult, NO_BOUND,
+                                                         Progress, add_local_bounds,
                                                          average_inconsistency,
                                                          check_consistency, evaluate_pairs,
                                                          inconsistent_endpoints, local_pairs,
                                                          local_scales, pair_endpoints,
-                                                         robust_statistic, robust_sums)
+                                                         robust_statistic, robust_sums,
+                                                         scales_from_bounds)
 
 __all__ = [
     'statistics',
     'ConsistencyParameters', 'ConsistencyResult', 'Progress', 'check_consistency',
     'evaluate_pairs', 'local_pairs', 'local_scales', 'robust_sums',
+    'NO_BOUND', 'add_local_bounds', 'scales_from_bounds',
     'robust_statistic', 'average_inconsistency', 'inconsistent_endpoints', 'pair_endpoints',
     'BaselineParameters', 'LocalGrids', 'PairLikelihoods', 'local_grids', 'pair_log_likelihoods',
     'map_statistic', 'traverse_cells', 'UNKNOWN', 'FREE', 'OCCUPIED',

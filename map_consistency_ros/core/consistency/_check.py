@@ -227,29 +227,60 @@ def local_scales(measures: PairMeasures, scan_count: int,
 def _scales_from_sums(pairs: np.ndarray, distance_sum: np.ndarray, count: np.ndarray,
                       scan_count: int, parameters: ConsistencyParameters) -> np.ndarray:
     """local_scales from the local pairs' trimmed (M_ij, n_ij)."""
+    largest = np.full(scan_count, NO_BOUND)
+    add_local_bounds(largest, pairs, distance_sum, count, parameters)
+    return scales_from_bounds(largest, parameters)
+
+
+NO_BOUND = -1.0  # a scan's largest bound while it has no usable local pair (bounds are >= 0)
+
+
+def add_local_bounds(largest: np.ndarray, pairs: np.ndarray, distance_sum: np.ndarray,
+                     count: np.ndarray, parameters: ConsistencyParameters) -> None:
+    """Raise each scan's largest scale bound (eq. 10) to those of more local pairs, in place.
+
+    A scan's s_i is the largest bound over its usable local pairs, so pairs can be added in any
+    order and in any number of calls: the live monitor adds only the pairs it measured since
+    its last test (`scales_from_bounds` turns the result into s_i).
+
+    Parameters
+    ----------
+    largest: (N,) the largest bound of each scan so far, NO_BOUND where it has none; updated.
+    pairs: (P, 2) scan indices of the local pairs.
+    distance_sum, count: (P,) their trimmed M_ij and n_ij.
+    parameters: the test's parameters (local_alpha, min_points).
+    """
     usable = count >= parameters.min_points
     bounds = np.zeros(len(pairs))
     bounds[usable] = statistics.scale_bound(distance_sum[usable], count[usable],
                                             parameters.local_alpha)
-    return _largest_bounds(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bounds, usable,
-                           scan_count, parameters.default_scale, parameters.min_scale)
+    _raise_largest(largest, np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bounds, usable)
+
+
+def scales_from_bounds(largest: np.ndarray, parameters: ConsistencyParameters) -> np.ndarray:
+    """s_i from each scan's largest local bound (`add_local_bounds`).
+
+    Parameters
+    ----------
+    largest: (N,) the largest bound of each scan, NO_BOUND where it has none.
+    parameters: the test's parameters (default_scale, min_scale).
+
+    Returns
+    -------
+    (N,) s_i in metres: `default_scale` for scans without a bound, all at least `min_scale`.
+    """
+    return np.maximum(np.where(largest >= 0.0, largest, parameters.default_scale),
+                      parameters.min_scale)
 
 
 @njit(cache=True)
-def _largest_bounds(pairs: np.ndarray, bounds: np.ndarray, usable: np.ndarray, scan_count: int,
-                    default: float, floor: float) -> np.ndarray:
-    """Per scan, the largest bound of its usable pairs, `default` without any, at least
-    `floor`."""
-    scales = np.zeros(scan_count)
-    has_estimate = np.zeros(scan_count, dtype=np.bool_)
+def _raise_largest(largest: np.ndarray, pairs: np.ndarray, bounds: np.ndarray,
+                   usable: np.ndarray) -> None:
+    """Per scan, the largest of `largest` and the bounds of its usable pairs (in place)."""
     for index in range(pairs.shape[0]):
         if usable[index]:
             for scan in (pairs[index, 0], pairs[index, 1]):
-                scales[scan] = max(scales[scan], bounds[index])
-                has_estimate[scan] = True
-    for scan in range(scan_count):
-        scales[scan] = max(scales[scan] if has_estimate[scan] else default, floor)
-    return scales
+                largest[scan] = max(largest[scan], bounds[index])
 
 
 def _filter_isolated_flags(inconsistent: np.ndarray, window: int) -> np.ndarray:

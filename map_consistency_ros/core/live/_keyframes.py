@@ -162,7 +162,10 @@ class Keyframes:
         stamps: the folded scans' stamps, seconds, in any order (empty: nothing to do).
         """
         if stamps:
-            self.folded = np.sort(np.concatenate([self.folded, stamps]))
+            # merged into the sorted stamps, not sorted again: a run folds thousands of scans
+            # and an update adds a few, so a sort would grow with the run
+            added = np.sort(np.asarray(stamps, dtype=np.float64))
+            self.folded = np.insert(self.folded, np.searchsorted(self.folded, added), added)
             self._added.extend(float(stamp) for stamp in stamps)
 
     @property

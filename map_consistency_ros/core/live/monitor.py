@@ -32,8 +32,10 @@ import numpy as np
 
 from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
                                               split_constraint_rows)
-from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
-                                                  evaluate_pairs, local_scales)
+from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
+                                                  ConsistencyResult, add_local_bounds,
+                                                  evaluate_pairs, local_scales,
+                                                  scales_from_bounds)
 from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, measure_pairs,
                                                read_only, se2)
@@ -190,6 +192,9 @@ class ConsistencyMonitor:
         trim = self.parameters.trim_largest
         self._current = PairCache(self._keep, trim)  # map pairs at the current poses
         self._local = PairCache(self._keep, trim)  # local-window pairs at incremental poses
+        # the local cache, its generation and size when each slot's largest local bound
+        # (add_local_bounds) was last brought up to date, and those bounds
+        self._local_bounds: tuple[PairCache, int, int, np.ndarray] | None = None
         self._placed, self._placed_incremental = Placement(), Placement()
         self._budget = PartnerBudget(self.settings.max_partners)
 
@@ -610,8 +615,7 @@ class ConsistencyMonitor:
             # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
             in_order = keyframes.in_stamp_order()
             ranks = None if in_order else rank_of_slot(order)
-            scales = local_scales(self._local.measures(ranks), keyframes.count, self.parameters,
-                                  robust=self._local.robust())
+            scales = self._local_scales(ranks, keyframes.count)
             cache, previous = self._current, None
             if in_order and self._tested_on is not None:
                 tested_cache, generation, tested = self._tested_on
@@ -623,6 +627,32 @@ class ConsistencyMonitor:
                                           first_rows=cache.first_rows(keyframes.count))
             self._tested_on = (cache, cache.generation, self._result) if in_order else None
         return self._result
+
+    def _local_scales(self, ranks: np.ndarray | None, scan_count: int) -> np.ndarray:
+        """s_i of every keyframe (consistency.local_scales on the local-window pairs).
+
+        A scan's s_i is the largest bound over its local pairs, so while the local cache only
+        grows (no drop) and rank == slot, only the pairs appended since the last test are
+        added to the kept bounds: the same s_i, at a cost that does not grow with the map.
+        """
+        local = self._local
+        if ranks is not None:  # keyframes out of stamp order: scans are re-indexed
+            self._local_bounds = None
+            return local_scales(local.measures(ranks), scan_count, self.parameters,
+                                robust=local.robust())
+        kept = self._local_bounds
+        if (kept is None or kept[0] is not local or kept[1] != local.generation
+                or kept[3].size > scan_count):
+            start, largest = 0, np.full(scan_count, NO_BOUND)
+        else:
+            start, largest = kept[2], kept[3]
+            if largest.size < scan_count:
+                largest = np.concatenate([largest, np.full(scan_count - largest.size, NO_BOUND)])
+        trimmed_sum, trimmed_count = local.robust()
+        add_local_bounds(largest, local.pairs[start:], trimmed_sum[start:],
+                         trimmed_count[start:], self.parameters)
+        self._local_bounds = (local, local.generation, local.size, largest)
+        return scales_from_bounds(largest, self.parameters)
 
     def _update_local(self, order: np.ndarray, new_ranks: np.ndarray) -> int:
         """Measures at the incremental poses of every pair within the local window."""

@@ -2,10 +2,11 @@
 import numpy as np
 import pytest
 
-from map_consistency_ros.core.consistency import (ConsistencyParameters, average_inconsistency,
+from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
+                                                  add_local_bounds, average_inconsistency,
                                                   check_consistency, evaluate_pairs,
                                                   inconsistent_endpoints, local_pairs,
-                                                  local_scales, statistics)
+                                                  local_scales, scales_from_bounds, statistics)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, se2
 from map_consistency_ros.io import carmen
 
@@ -120,6 +121,26 @@ def test_local_scales_follow_eq_10():
     assert not on_edge.failed[0]
     floored = local_scales(measures, 4, ConsistencyParameters(trim_largest=0, min_scale=1.0))
     np.testing.assert_array_equal(floored, 1.0)
+
+
+def test_local_bounds_added_in_parts_give_the_scales_of_all_pairs():
+    # the live monitor adds only the local pairs it measured since its last test
+    rng = np.random.default_rng(3)
+    pairs = _ring_of_pairs(40, 3)
+    # scan 7's pairs have too few points to bound its scale
+    samples = [np.abs(rng.normal(0.0, rng.uniform(0.01, 0.05),
+                                 rng.integers(0, 9) if 7 in pair else rng.integers(0, 60)))
+               for pair in pairs]
+    measures = _measures(pairs, samples)
+    parameters = ConsistencyParameters(trim_largest=0, default_scale=0.5, min_points=10)
+    whole = local_scales(measures, 42, parameters)  # scans 40 and 41 have no pair
+    largest = np.full(42, NO_BOUND)
+    for part in np.array_split(rng.permutation(len(pairs)), 4):
+        add_local_bounds(largest, measures.pairs[part], measures.distance_sum[part],
+                         measures.point_count[part], parameters)
+    np.testing.assert_array_equal(scales_from_bounds(largest, parameters), whole)
+    assert whole[7] == whole[40] == whole[41] == 0.5
+    assert (whole < 0.5).sum() > 30
 
 
 def test_flag_window_removes_isolated_flags():

@@ -39,6 +39,11 @@ def test_folded_stamps_name_poses_without_a_keyframe():
     keyframes = _store([1.0, 2.0])
     keyframes.fold([5.0, 4.0])
     assert keyframes.folded.tolist() == [4.0, 5.0]
+    keyframes.fold([4.5, 6.0, 0.5])  # merged into the sorted stamps, whatever their order
+    keyframes.fold([])
+    assert keyframes.folded.tolist() == [0.5, 4.0, 4.5, 5.0, 6.0]
+    keyframes = _store([1.0, 2.0])
+    keyframes.fold([5.0, 4.0])
     slots = keyframes.trajectory_slots(np.array([2.0, 2.25, 4.125, 7.0]))
     assert slots.tolist() == [1, NO_SCAN, FOLDED, NO_SCAN]
     assert keyframes.holds(2.25) and keyframes.holds(5.25) and not keyframes.holds(6.0)
