@@ -2,12 +2,13 @@
 (io/messages.py, the converter bag replay uses too) and queue them for the engine.
 
 Scans take a callback group of their own, the heavier poses and constraints another, so
-decoding a long Path never delays a scan. Queued records carry their arrival
-(time.monotonic), for the update latency. Scans and single poses are all kept, in arrival order
-(the slam_toolbox bridge's association and heading chain depend on it), up to the monitor's
-`max_buffered_scans`; of keyframe estimates and constraints, each the full set, only the newest.
-Every scan the node cannot take is counted (DDS losses, a full queue); every bad message is
-counted, kept for diagnostics and warned about at most once per `warning_period` per topic.
+decoding a long Path never delays a scan. Queued records carry their arrival (time.monotonic
+on entering the callback: decoding counts in the update latency). Scans and single poses are
+all kept, in arrival order (the slam_toolbox bridge's association and heading chain depend on
+it), up to the monitor's `max_buffered_scans`; of keyframe estimates and constraints, each the
+full set, only the newest. Every scan the node cannot take is counted (DDS losses, a full
+queue); every bad message is counted, kept for diagnostics and warned about at most once per
+`warning_period` per topic.
 """
 from __future__ import annotations
 
@@ -224,6 +225,7 @@ class Intake:
         ----------
         msg: a sensor_msgs/LaserScan; a bad one is counted as a problem and dropped.
         """
+        arrival = time.monotonic()
         record = self._convert('scan', messages.SCAN_TYPE, msg)
         if record is None:
             return
@@ -231,7 +233,7 @@ class Intake:
             if len(self._scans) >= self._queue_limit:
                 self._scans.popleft()
                 self._queue_lost += 1
-            self._scans.append((time.monotonic(), record))
+            self._scans.append((arrival, record))
         self._wake.set()
 
     def _on_scans_lost(self, info) -> None:
@@ -252,12 +254,13 @@ class Intake:
         data: a serialized nav_msgs/Path (raw subscription); a bad one is counted as a problem
             and dropped, the estimate queued before it stays.
         """
+        arrival = time.monotonic()
         record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
         if record is not None:
             with self._lock:
                 # the full estimate: a newer one replaces it, and the wait counts from the
                 # first one it replaced (the latency is that of the oldest input answered)
-                first = time.monotonic() if self._estimate is None else self._estimate[0]
+                first = arrival if self._estimate is None else self._estimate[0]
                 self._estimate = (first, record)
             self._wake.set()
 
@@ -270,7 +273,8 @@ class Intake:
             PoseWithCovarianceStamped).
         msg: the message; a bad one is counted as a problem and dropped.
         """
-        self._queue_pose(self._convert('pose', msgtype, msg))
+        arrival = time.monotonic()
+        self._queue_pose(arrival, self._convert('pose', msgtype, msg))
 
     def _on_graph(self, data: bytes) -> None:
         """Queue a snapshot of slam_toolbox's graph markers.
@@ -280,11 +284,13 @@ class Intake:
         data: a serialized visualization_msgs/MarkerArray (raw subscription); a bad one is
             counted as a problem and dropped.
         """
-        self._queue_pose(self._convert_bytes('graph_visualization', messages.MARKER_ARRAY_TYPE,
-                                             data))
+        arrival = time.monotonic()
+        self._queue_pose(arrival, self._convert_bytes('graph_visualization',
+                                                      messages.MARKER_ARRAY_TYPE, data))
 
-    def _queue_pose(self, record: PoseSample | GraphSnapshot | None) -> None:
-        """Queue a single pose or graph snapshot (all kept, in order; None: it was bad)."""
+    def _queue_pose(self, arrival: float, record: PoseSample | GraphSnapshot | None) -> None:
+        """Queue a single pose or graph snapshot that arrived at `arrival` (time.monotonic;
+        all kept, in order; None: it was bad)."""
         if record is not None:
             with self._lock:
                 if len(self._poses) >= self._queue_limit:
@@ -292,7 +298,7 @@ class Intake:
                     self._problems += 1
                     self._last_problem = ('pose: queue full, the oldest pose or graph dropped',
                                           time.monotonic())
-                self._poses.append((time.monotonic(), record))
+                self._poses.append((arrival, record))
             self._wake.set()
 
     def _on_constraints(self, msg) -> None:
@@ -303,8 +309,9 @@ class Intake:
         msg: a std_msgs/Float64MultiArray of edge rows; a bad one is counted as a problem and
             dropped, the set queued before it stays.
         """
+        arrival = time.monotonic()
         record = self._convert('constraints', messages.CONSTRAINTS_TYPE, msg)
         if record is not None:
             with self._lock:
-                self._constraints = (time.monotonic(), record)
+                self._constraints = (arrival, record)
             self._wake.set()

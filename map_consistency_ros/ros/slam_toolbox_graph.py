@@ -15,6 +15,7 @@ milliseconds per hundred nodes.
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -66,9 +67,9 @@ def _subscribe(node, msgtype: str, callback, qos: QoSProfile, group, raw: bool =
 
 
 def subscribe(node, group, convert: Convert, convert_bytes: Convert,
-              queue: Callable[[object], None]) -> None:
+              queue: Callable[[float, object], None]) -> None:
     """Subscribe `node` to the three topics: each message becomes a record handed to `queue`
-    in arrival order.
+    in arrival order, with its arrival.
 
     Parameters
     ----------
@@ -77,15 +78,19 @@ def subscribe(node, group, convert: Convert, convert_bytes: Convert,
     convert: convert(topic, type, message) of a node or loop-closure event: its record,
         None when it was bad (`convert` counts the problem).
     convert_bytes: the same for the pose graph, taken raw: its serialized bytes.
-    queue: takes each record, or None for a bad message.
+    queue: queue(arrival, record) takes each record (None for a bad message) and the
+        time.monotonic at which its callback began, before the conversion.
 
     MissingInterfaces when slam_toolbox's message classes cannot be imported.
     """
     require_interfaces()
+    # arguments are evaluated left to right: the arrival is taken before the conversion
     for msgtype in (NEW_NODE_EVENT_TYPE, LOOP_CLOSURE_EVENT_TYPE):
         _subscribe(node, msgtype,
-                   lambda msg, kind=msgtype: queue(convert(TOPICS[kind], kind, msg)),
+                   lambda msg, kind=msgtype: queue(time.monotonic(),
+                                                   convert(TOPICS[kind], kind, msg)),
                    EVENTS, group)
     _subscribe(node, POSE_GRAPH_TYPE,
-               lambda data: queue(convert_bytes(TOPICS[POSE_GRAPH_TYPE], POSE_GRAPH_TYPE, data)),
+               lambda data: queue(time.monotonic(), convert_bytes(TOPICS[POSE_GRAPH_TYPE],
+                                                                  POSE_GRAPH_TYPE, data)),
                GRAPHS, group, raw=True)
