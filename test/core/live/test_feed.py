@@ -168,6 +168,16 @@ def test_stamp_gaps_count_missing_scans():
     assert gaps.missing == 3
 
 
+def test_the_period_quantiles_are_numpys_linear_percentiles():
+    from map_consistency_ros.core.live._feed import _percentiles
+    rng = np.random.default_rng(5)
+    for size in (1, 2, 8, 9, 63, 64):
+        sample = rng.exponential(0.05, size) * rng.choice([1e-3, 1.0, 10.0])
+        expected = np.percentile(sample, [10, 50, 90])
+        np.testing.assert_array_equal(_percentiles(sorted(sample.tolist()), (0.1, 0.5, 0.9)),
+                                      expected)
+
+
 def test_scans_published_twice_do_not_shrink_the_period():
     gaps = ScanGaps()
     for stamp in np.arange(40) * 0.1:  # a 10 Hz driver publishing every scan twice
