@@ -14,7 +14,8 @@ sent, scans the node reports lost (`lost scans` and `poses without scan` of /dia
 node's update latency (arrival of the Path -> verdict published, from ~/report) as median / p99
 overall and per map-size bucket with the time per stage (monitor update, snapshot, markers,
 publishing), the node's peak RSS, and the time SIGINT takes to end it, beside the same Path
-updates through the feed in-process (the reference). Targets (issue 12): at 400 scans/s every
+updates through the feed in-process, its scans applied at the stream's rate (the reference),
+and back to back. Targets (issue 12): at 400 scans/s every
 scan a keyframe or the loss reported; median < 10 ms and p99 < 50 ms at 100 scans/s.
 
 Paths are pre-serialized (a prefix of the full Path's CDR bytes, so the publisher keeps pace);
@@ -119,25 +120,38 @@ def peak_rss_mib(pid: int) -> float:
     return float('nan')
 
 
-def in_process(stamps, ranges, poses, model, path_every: int, threads: int) -> np.ndarray:
-    """Seconds of each Path update of the same stream through the feed without ROS (the
-    reference: what the node adds is conversion, queueing, markers, publishing, sharing), its
+def in_process(stamps, ranges, poses, model, path_every: int, threads: int,
+               rate: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(seconds, keyframes after it) of each Path update of the same stream through the feed without ROS (the
+    reference: what the node adds is decoding, queueing, markers, publishing, sharing), its
     kernels on as many threads as the node's updates (`update_threads`, 0: every core): the
-    thread count is a setting of both, not a cost of the node."""
+    thread count is a setting of both, not a cost of the node.
+
+    `rate` (scans per second): each scan is applied at its time in the stream, as the node gets
+    it, and the processor idles in between; None: back to back. An update that follows idling
+    finds colder caches than one that follows another at once, and the node's updates come at
+    the stream's pace: the paced run is the reference of the same updates (docs/benchmarks.md
+    has both)."""
     import numba
     available = numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(available if threads == 0 else min(threads, available))
     from map_consistency_ros.core.live import KeyframeEstimate, MonitorFeed, Scan
     feed = MonitorFeed()
-    seconds = []
+    seconds, sizes = [], []
+    begin = time.perf_counter()
     for k in range(len(stamps)):
+        if rate is not None:
+            wait = begin + k / rate - time.perf_counter()
+            if wait > 0.0:
+                time.sleep(wait)
         feed.apply(Scan(stamp=float(stamps[k]), ranges=ranges[k], model=model))
         if (k + 1) % path_every == 0 or k + 1 == len(stamps):
             start = time.perf_counter()
             feed.apply(KeyframeEstimate(stamps=stamps[:k + 1], poses=poses[:k + 1]))
             feed.monitor.evaluate()  # the test's statistics run here
             seconds.append(time.perf_counter() - start)
-    return np.array(seconds)
+            sizes.append(feed.monitor.keyframe_count)
+    return np.array(seconds), np.array(sizes)
 
 
 def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
@@ -309,14 +323,22 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         from map_consistency_ros.core.configuration import NodeSettings
         threads = next((int(value.split(':=')[1]) for value in parameters
                         if value.startswith('update_threads:=')), NodeSettings().update_threads)
-        alone = in_process(stamps, ranges, poses, model, path_every, threads) * 1e3
-        print(f'  reference: the same Path updates in-process, no ROS: median '
-              f'{np.median(alone):.1f} ms, p99 {np.percentile(alone, 99):.1f} ms '
-              f'({path_every} keyframes each, kernels on {threads or "every"} thread(s) as the '
-              'node\'s updates)')
+        alone, alone_sizes = in_process(stamps, ranges, poses, model, path_every, threads, rate)
+        hot = in_process(stamps, ranges, poses, model, path_every, threads)[0] * 1e3
+        alone = alone * 1e3
+        edges = np.linspace(0, alone_sizes.max(), BUCKETS + 1)
+        first_bucket = alone[alone_sizes <= edges[1]]
+        last_bucket = alone[alone_sizes > edges[-2]]
+        print(f'  reference: the same Path updates in-process, no ROS, the scans applied at '
+              f'{rate:g} scans/s as streamed: median {np.median(alone):.1f} ms, p99 '
+              f'{np.percentile(alone, 99):.1f} ms ({path_every} keyframes each, kernels on '
+              f'{threads or "every"} thread(s) as the node\'s updates); back to back, warm: '
+              f'median {np.median(hot):.1f} ms, p99 {np.percentile(hot, 99):.1f} ms')
+        print(f'  in-process (paced) last / first map-size bucket, median: '
+              f'{np.median(last_bucket) / np.median(first_bucket):.2f}')
         if latency.size:
             print(f'  node / in-process median latency: {np.median(latency) / np.median(alone):.2f}'
-                  ' (target <= 1.5)')
+                  f' (target <= 1.5); node / back to back {np.median(latency) / np.median(hot):.2f}')
     print(f'  node peak RSS                        {rss:.0f} MiB')
     state = 'during a retune' if retuning else 'after the retune'
     print(f'  SIGINT -> exit, {state:<20} {stop_seconds:.2f} s (exit code {node.returncode}; '
