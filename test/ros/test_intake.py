@@ -1,0 +1,58 @@
+"""The node's intake without a middleware: when an input counts as arrived."""
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+
+from map_consistency_ros.core.configuration import NodeSettings
+from map_consistency_ros.core.live import Constraints, FeedSettings, KeyframeEstimate, Scan
+from map_consistency_ros.core.geometry import SensorModel
+from map_consistency_ros.ros import intake as intake_module
+from map_consistency_ros.ros.intake import Intake
+
+
+class _Clock:
+    """time.monotonic for the intake, which decoding advances."""
+
+    def __init__(self) -> None:
+        self.seconds = 100.0
+
+    def monotonic(self) -> float:
+        return self.seconds
+
+
+def _node() -> SimpleNamespace:
+    clock = SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=0))
+    return SimpleNamespace(get_clock=lambda: clock)
+
+
+def test_an_input_arrives_when_its_callback_begins_so_decoding_counts_in_the_latency(
+        monkeypatch):
+    clock = _Clock()
+    monkeypatch.setattr(intake_module, 'time', SimpleNamespace(monotonic=clock.monotonic))
+    model = SensorModel(angle_min=-1.0, angle_increment=0.5, max_range=10.0)
+    records = {'scan': Scan(stamp=1.0, ranges=np.ones(5), model=model),
+               'constraints': Constraints(rows=np.zeros((0, 11))),
+               'trajectory': KeyframeEstimate(stamps=np.zeros(1), poses=np.zeros((1, 3)))}
+
+    def decoding(record):
+        def decode(*_, **__):
+            clock.seconds += 2.0  # a long Path takes its time to decode
+            return record
+        return decode
+
+    monkeypatch.setattr(intake_module.messages, 'record_from_cdr',
+                        decoding(records['trajectory']))
+    intake = Intake(_node(), NodeSettings(), FeedSettings(), 10, threading.Event())
+    for topic in ('scan', 'constraints'):
+        monkeypatch.setattr(intake_module.messages, 'to_record', decoding(records[topic]))
+        getattr(intake, f'_on_{topic}')(object())
+    intake._on_trajectory(b'')
+    taken = intake.take()
+    # each arrived before its own decoding: 100, 102 and 104, not 102, 104 and 106
+    assert [arrival for arrival, _ in taken] == [100.0, 102.0, 104.0]
+    assert all(record is records[topic] for (_, record), topic in
+               zip(taken, ('scan', 'constraints', 'trajectory')))
+    assert clock.seconds == 106.0
