@@ -34,8 +34,7 @@ from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check
                                               split_constraint_rows)
 from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
                                                   ConsistencyResult, add_local_bounds,
-                                                  evaluate_pairs, local_scales,
-                                                  scales_from_bounds)
+                                                  evaluate_pairs, scales_from_bounds)
 from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, measure_pairs,
                                                read_only, se2)
@@ -615,7 +614,9 @@ class ConsistencyMonitor:
             # Keyframes that arrived in stamp order have rank == slot: no re-indexing.
             in_order = keyframes.in_stamp_order()
             ranks = None if in_order else rank_of_slot(order)
-            scales = self._local_scales(ranks, keyframes.count)
+            scales = self._local_scales(keyframes.count)
+            if not in_order:
+                scales = scales[order]  # by slot -> by rank
             cache, previous = self._current, None
             if in_order and self._tested_on is not None:
                 tested_cache, generation, tested = self._tested_on
@@ -628,26 +629,25 @@ class ConsistencyMonitor:
             self._tested_on = (cache, cache.generation, self._result) if in_order else None
         return self._result
 
-    def _local_scales(self, ranks: np.ndarray | None, scan_count: int) -> np.ndarray:
-        """s_i of every keyframe (consistency.local_scales on the local-window pairs).
+    def _local_scales(self, slot_count: int) -> np.ndarray:
+        """s_i of every keyframe slot (consistency.local_scales on the local-window pairs),
+        indexed by slot.
 
-        A scan's s_i is the largest bound over its local pairs, so while the local cache only
-        grows (no drop) and rank == slot, only the pairs appended since the last test are
-        added to the kept bounds: the same s_i, at a cost that does not grow with the map.
+        A scan's s_i is the largest bound over its local pairs, whatever their order: while
+        the local cache only grows (no drop), only the pairs appended since the last test are
+        added to the bounds kept per slot, the same s_i at a cost that does not grow with the
+        map. Per slot, so that a keyframe arriving out of stamp order (which shifts the ranks)
+        does not start them over; the pairs it reshapes are dropped, which does.
         """
         local = self._local
-        if ranks is not None:  # keyframes out of stamp order: scans are re-indexed
-            self._local_bounds = None
-            return local_scales(local.measures(ranks), scan_count, self.parameters,
-                                robust=local.robust())
         kept = self._local_bounds
         if (kept is None or kept[0] is not local or kept[1] != local.generation
-                or kept[3].size > scan_count):
-            start, largest = 0, np.full(scan_count, NO_BOUND)
+                or kept[3].size > slot_count):
+            start, largest = 0, np.full(slot_count, NO_BOUND)
         else:
             start, largest = kept[2], kept[3]
-            if largest.size < scan_count:
-                largest = np.concatenate([largest, np.full(scan_count - largest.size, NO_BOUND)])
+            if largest.size < slot_count:
+                largest = np.concatenate([largest, np.full(slot_count - largest.size, NO_BOUND)])
         trimmed_sum, trimmed_count = local.robust()
         add_local_bounds(largest, local.pairs[start:], trimmed_sum[start:],
                          trimmed_count[start:], self.parameters)
