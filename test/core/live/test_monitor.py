@@ -142,6 +142,20 @@ def test_every_update_of_a_growing_map_equals_the_batch_test(intel):
                              _oracle(ranges[:end], placed[:end], model, reference))
 
 
+def test_every_update_after_stamps_out_of_order_equals_the_batch_test(intel):
+    """Scan 295 arrives after 294 with an earlier stamp: the local bounds kept per slot give
+    the batch test's scales on every later update, not only after a fresh start."""
+    stamps, ranges, poses, model = intel
+    monitor = ConsistencyMonitor(EVERY_KEYFRAME, ALL_PAIRS)
+    for end in range(1, len(stamps) + 1):
+        monitor.add_scan(stamps[end - 1], ranges[end - 1], model)
+        monitor.update_trajectory(stamps[:end], poses[:end])
+        if end % 5 == 0 or end == len(stamps):
+            order = np.argsort(stamps[:end], kind='stable')
+            _assert_same_verdict(monitor.evaluate().result,
+                                 _oracle(ranges[:end][order], poses[:end][order], model))
+
+
 def test_a_partner_budget_thins_the_pairs_of_dense_keyframes_stably(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     budget = 8
