@@ -178,9 +178,10 @@ class ConsistencyMonitor:
         self._path_slots_of: tuple[np.ndarray, Keyframes, int, np.ndarray] | None = None
         self._reset_pairs()
         self._result: ConsistencyResult | None = None
-        # the last result with rank == slot, its pair cache and the cache's generation then:
-        # while the cache only grows, the next test starts from it
-        self._tested_on: tuple[PairCache, int, ConsistencyResult] | None = None
+        # the last result, its pair cache, the cache's generation and the keyframe order then:
+        # while the cache only grows and that order stays the start of the current one, the
+        # next test starts from it
+        self._tested_on: tuple[PairCache, int, ConsistencyResult, np.ndarray] | None = None
         self._last = UpdateSummary()
         self._unmatched = 0
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
@@ -604,9 +605,10 @@ class ConsistencyMonitor:
         """The test on the current measures (computed at most once per change).
 
         The statistics cover every pair of the map; a burst of updates (a Path with late
-        scans, a node catching up) costs one test, at the next evaluation. While keyframes only
-        arrive in stamp order and none moved, only the new pairs and those of scans whose scale
-        changed are tested again (evaluate_pairs' `previous`).
+        scans, a node catching up) costs one test, at the next evaluation. While no keyframe
+        moved and the new ones came after every earlier one in stamp order (the earlier ones
+        keep their ranks, whether or not they once arrived out of order), only the new pairs
+        and those of scans whose scale changed are tested again (evaluate_pairs' `previous`).
         """
         if self._result is None and self.keyframe_count:
             keyframes = self._keyframes
@@ -615,18 +617,19 @@ class ConsistencyMonitor:
             in_order = keyframes.in_stamp_order()
             ranks = None if in_order else rank_of_slot(order)
             scales = self._local_scales(keyframes.count)
-            if not in_order:
-                scales = scales[order]  # by slot -> by rank
+            first_rows = self._current.first_rows(keyframes.count)
+            if not in_order:  # by slot -> by rank
+                scales, first_rows = scales[order], first_rows[order]
             cache, previous = self._current, None
-            if in_order and self._tested_on is not None:
-                tested_cache, generation, tested = self._tested_on
-                if tested_cache is cache and generation == cache.generation:
+            if self._tested_on is not None:
+                tested_cache, generation, tested, tested_order = self._tested_on
+                if (tested_cache is cache and generation == cache.generation
+                        and np.array_equal(order[:tested_order.size], tested_order)):
                     previous = tested
             self._result = evaluate_pairs(cache.measures(ranks), scales, keyframes.count,
                                           self.parameters, robust=cache.robust(),
-                                          previous=previous,
-                                          first_rows=cache.first_rows(keyframes.count))
-            self._tested_on = (cache, cache.generation, self._result) if in_order else None
+                                          previous=previous, first_rows=first_rows)
+            self._tested_on = (cache, cache.generation, self._result, order.copy())
         return self._result
 
     def _local_scales(self, slot_count: int) -> np.ndarray:
