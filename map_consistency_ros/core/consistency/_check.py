@@ -224,15 +224,15 @@ def local_scales(measures: PairMeasures, scan_count: int,
     return _scales_from_sums(measures.pairs, distance_sum, count, scan_count, parameters)
 
 
+NO_BOUND = -1.0  # a scan's largest bound while it has no usable local pair (bounds are >= 0)
+
+
 def _scales_from_sums(pairs: np.ndarray, distance_sum: np.ndarray, count: np.ndarray,
                       scan_count: int, parameters: ConsistencyParameters) -> np.ndarray:
     """local_scales from the local pairs' trimmed (M_ij, n_ij)."""
     largest = np.full(scan_count, NO_BOUND)
     add_local_bounds(largest, pairs, distance_sum, count, parameters)
     return scales_from_bounds(largest, parameters)
-
-
-NO_BOUND = -1.0  # a scan's largest bound while it has no usable local pair (bounds are >= 0)
 
 
 def add_local_bounds(largest: np.ndarray, pairs: np.ndarray, distance_sum: np.ndarray,
