@@ -15,8 +15,8 @@ node's update latency (arrival of the Path -> verdict published, from ~/report) 
 overall and per map-size bucket with the time per stage (monitor update, snapshot, markers,
 publishing), the node's peak RSS, and the time SIGINT takes to end it, beside the same Path
 updates through the feed in-process, its scans applied at the stream's rate (the reference),
-and back to back. Targets (issue 12): at 400 scans/s every
-scan a keyframe or the loss reported; median < 10 ms and p99 < 50 ms at 100 scans/s.
+and back to back. Targets (issue 12): at 400 scans/s every scan a keyframe or the loss
+reported; median < 10 ms and p99 < 50 ms at 100 scans/s.
 
 Paths are pre-serialized (a prefix of the full Path's CDR bytes, so the publisher keeps pace);
 the publisher and the node share the machine, so latencies are upper bounds.
@@ -44,6 +44,15 @@ LOGS = {'intel': DATA / 'intel' / 'intel.gfs.log',
         # Intel at the laser's native rate (the density suite's rebuild): scan by scan
         'intel-native': REPO / 'data' / 'density' / 'intel-native.log.gz'}
 BUCKETS = 6
+
+
+def map_size_buckets(sizes: np.ndarray) -> list[tuple[float, float, np.ndarray]]:
+    """(low, high, which updates) of each non-empty map-size bucket: BUCKETS equal spans of
+    (0, largest map size] over the updates' map sizes `sizes`."""
+    edges = np.linspace(0, sizes.max(), BUCKETS + 1)
+    buckets = [(low, high, (sizes > low) & (sizes <= high))
+               for low, high in zip(edges[:-1], edges[1:])]
+    return [bucket for bucket in buckets if bucket[2].any()]
 
 
 def path_prefixes(stamps: np.ndarray, poses: np.ndarray):
@@ -122,10 +131,10 @@ def peak_rss_mib(pid: int) -> float:
 
 def in_process(stamps, ranges, poses, model, path_every: int, threads: int,
                rate: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(seconds, keyframes after it) of each Path update of the same stream through the feed without ROS (the
-    reference: what the node adds is decoding, queueing, markers, publishing, sharing), its
-    kernels on as many threads as the node's updates (`update_threads`, 0: every core): the
-    thread count is a setting of both, not a cost of the node.
+    """(seconds, keyframes after it) of each Path update of the same stream through the feed
+    without ROS (the reference: what the node adds is decoding, queueing, markers, publishing,
+    sharing), its kernels on as many threads as the node's updates (`update_threads`, 0: every
+    core): the thread count is a setting of both, not a cost of the node.
 
     `rate` (scans per second): each scan is applied at its time in the stream, as the node gets
     it, and the processor idles in between; None: back to back. An update that follows idling
@@ -294,14 +303,10 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
               f'over {latency.size} of {published} updates '
               '(target: median < 10, p99 < 50)')
         sizes = np.array([r['keyframes'] for r in reports])  # map size: viewpoints
-        edges = np.linspace(0, sizes.max(), BUCKETS + 1)
         buckets = []
         print('  keyframes        updates  median  p99   | queued monitor snapshot markers '
               'publish (median ms) | second stage (median ms per explanation)')
-        for low, high in zip(edges[:-1], edges[1:]):
-            inside = (sizes > low) & (sizes <= high)
-            if not inside.any():
-                continue
+        for low, high, inside in map_size_buckets(sizes):
             stage = {key: np.median([r['timing'].get(key, 0.0) for r, keep in
                                      zip(reports, inside) if keep]) * 1e3
                      for key in ('queued_s', 'monitor_s', 'snapshot_s', 'markers_s', 'publish_s')}
@@ -310,8 +315,9 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             buckets.append(np.median(latency[inside]))
             print(f'  {int(low) + 1:>5}-{int(high):<5}  {inside.sum():>8}  '
                   f'{np.median(latency[inside]):6.1f} {np.percentile(latency[inside], 99):6.1f}'
-                  f' | {stage["queued_s"]:6.1f} {stage["monitor_s"]:7.1f} {stage["snapshot_s"]:8.1f} '
-                  f'{stage["markers_s"]:7.1f} {stage["publish_s"]:7.1f} | {explained:7.1f}')
+                  f' | {stage["queued_s"]:6.1f} {stage["monitor_s"]:7.1f} '
+                  f'{stage["snapshot_s"]:8.1f} {stage["markers_s"]:7.1f} '
+                  f'{stage["publish_s"]:7.1f} | {explained:7.1f}')
         print(f'  last / first map-size bucket, median latency: '
               f'{buckets[-1] / buckets[0]:.2f} (target <= 1.5: flat in map size)')
         if len(buckets) > 2:
@@ -324,21 +330,21 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         threads = next((int(value.split(':=')[1]) for value in parameters
                         if value.startswith('update_threads:=')), NodeSettings().update_threads)
         alone, alone_sizes = in_process(stamps, ranges, poses, model, path_every, threads, rate)
+        alone *= 1e3
         hot = in_process(stamps, ranges, poses, model, path_every, threads)[0] * 1e3
-        alone = alone * 1e3
-        edges = np.linspace(0, alone_sizes.max(), BUCKETS + 1)
-        first_bucket = alone[alone_sizes <= edges[1]]
-        last_bucket = alone[alone_sizes > edges[-2]]
+        alone_buckets = [np.median(alone[inside])
+                         for _, _, inside in map_size_buckets(alone_sizes)]
         print(f'  reference: the same Path updates in-process, no ROS, the scans applied at '
               f'{rate:g} scans/s as streamed: median {np.median(alone):.1f} ms, p99 '
               f'{np.percentile(alone, 99):.1f} ms ({path_every} keyframes each, kernels on '
               f'{threads or "every"} thread(s) as the node\'s updates); back to back, warm: '
               f'median {np.median(hot):.1f} ms, p99 {np.percentile(hot, 99):.1f} ms')
         print(f'  in-process (paced) last / first map-size bucket, median: '
-              f'{np.median(last_bucket) / np.median(first_bucket):.2f}')
+              f'{alone_buckets[-1] / alone_buckets[0]:.2f}')
         if latency.size:
-            print(f'  node / in-process median latency: {np.median(latency) / np.median(alone):.2f}'
-                  f' (target <= 1.5); node / back to back {np.median(latency) / np.median(hot):.2f}')
+            print(f'  node / in-process median latency: '
+                  f'{np.median(latency) / np.median(alone):.2f} (target <= 1.5); node / back to '
+                  f'back {np.median(latency) / np.median(hot):.2f}')
     print(f'  node peak RSS                        {rss:.0f} MiB')
     state = 'during a retune' if retuning else 'after the retune'
     print(f'  SIGINT -> exit, {state:<20} {stop_seconds:.2f} s (exit code {node.returncode}; '
