@@ -74,8 +74,8 @@ class ExplanationSettings(Settings):
     max_rotation_deg: float = parameter(10.0, 'largest rotation trusted as a local misalignment',
                                         'deg', (0.1, 180.0))
     significance: float = parameter(
-        0.001, 'level of the chi-square test that a correction differs from zero', '',
-        (1e-12, 0.5))
+        0.001, 'level of the chi-square test that a correction differs from zero, and of the '
+        'test that a misalignment among changes exceeds the tolerance', '', (1e-12, 0.5))
     min_registrations: int = parameter(
         3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
     min_region_scans: int = parameter(
@@ -373,7 +373,9 @@ def _corrected_chunk_pass(scans: ScanSet, result: ConsistencyResult, pairs: np.n
 
 def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np.ndarray,
               displacement: np.ndarray,
-              settings: ExplanationSettings) -> np.ndarray:
+              settings: ExplanationSettings) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) class codes of the pairs, and (E,) whether each pair's registration is a rigid
+    correction beyond the tolerance (determined, plausible, significant), mended or not."""
     correction = registrations.corrections[task_of_pair]
     # A covariance that is singular or not finite (a fit that left no residual, as between the
     # identical scans of a robot standing still; a corridor) leaves the correction undetermined.
@@ -388,9 +390,9 @@ def _classify(registrations: Registrations, task_of_pair: np.ndarray, passes: np
     codes = np.full(len(task_of_pair), _CLASS_CODE[CHANGE], dtype=np.int64)
     codes[determined & ~plausible & ~passes] = _CLASS_CODE[UNREGISTERED]
     codes[registered & passes] = _CLASS_CODE[MINOR]
-    codes[registered & passes & significant
-          & (displacement > settings.misalignment_tolerance)] = _CLASS_CODE[MISALIGNED]
-    return codes
+    rigid = significant & (displacement > settings.misalignment_tolerance)
+    codes[rigid & passes] = _CLASS_CODE[MISALIGNED]
+    return codes, rigid
 
 
 def _cascaded(result: ConsistencyResult, pairs: np.ndarray, bad: np.ndarray,
@@ -710,6 +712,79 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
     return tuple(regions)
 
 
+def _regions_among_changes(scans: ScanSet, result: ConsistencyResult, moments: PointMoments,
+                           pairs: np.ndarray, among_changes: np.ndarray, transforms: np.ndarray,
+                           covariances: np.ndarray, task_of_pair: np.ndarray,
+                           taken: np.ndarray, settings: ExplanationSettings,
+                           registration: RegistrationSettings | None
+                           ) -> list[tuple[np.ndarray, Misalignment]]:
+    """Misaligned regions hidden among changes: a revisit of a cluttered place whose failed
+    pairs stay failing under any rigid correction (the furniture moved), while its submaps'
+    registrations, made on the surfaces that did not move, agree on one correction beyond the
+    tolerance.
+
+    The pairwise test cannot confirm such a correction (its pairs fail either way), so the
+    registrations are the only evidence, and they must stand on their own: a stretch on both
+    sides (`min_region_scans`), at least `min_registrations` independent registrations placing
+    the region's points within the tolerance of its correction, the region registered as one
+    onto its reference scans (on at least `min_region_support` of shared surface) placing them
+    there too, and a displacement beyond the tolerance by more than the registrations'
+    disagreement allows at `significance` (one-sided normal test, the disagreement the RMS
+    displacement between each registration's placement and the region's, over n - 1 for n
+    placements). A revisit a few centimetres beyond the tolerance, on which registrations on
+    changed surfaces disagree by as much, is not called misaligned on their word alone.
+
+    Parameters
+    ----------
+    pairs: (E, 2) the explained pairs; `among_changes` (E,) those classed as change whose
+        registration is a rigid correction beyond the tolerance (_classify's `rigid`),
+        `transforms`, `covariances`, `task_of_pair` per pair as in _regions.
+    taken: (N,) scans already in a region: a pair whose later scan is there is not reused.
+
+    Returns
+    -------
+    [(rows of `pairs` behind the region, the region)] for each region found.
+    """
+    candidates = among_changes & ~taken[pairs[:, 1]]
+    if not candidates.any():
+        return []
+    later = np.unique(pairs[candidates, 1])
+    adjacent = np.stack([later[:-1], later[1:]], axis=1)[np.diff(later) <= settings.block]
+    labels = _components(scans.scan_count, np.concatenate([pairs[candidates], adjacent]))
+    found = []
+    for label in np.unique(labels[pairs[candidates, 0]]):
+        rows = np.flatnonzero(candidates & (labels[pairs[:, 0]] == label))
+        moved = np.unique(pairs[rows, 1])
+        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
+        if min(longest_run(moved, settings.block),
+               longest_run(reference, settings.block)) < settings.min_region_scans:
+            continue
+        points = moments.pooled(moved)
+        correction = _consensus(points, transforms[rows])
+        if (agreeing_registrations(moments, rows, pairs, transforms, task_of_pair, correction,
+                                   settings) < settings.min_registrations):
+            continue
+        whole = _register_region(scans, moved, reference, registration)
+        placements = np.concatenate([np.unique(transforms[rows], axis=0),
+                                     whole.correction[None]])
+        apart = points.displacement(se2.relative(correction, placements),
+                                    np.zeros(len(placements), dtype=np.int64))
+        if whole.support < settings.min_region_support or apart[-1] > \
+                settings.misalignment_tolerance:
+            continue
+        spread = math.sqrt(float(np.sum(apart ** 2)) / (len(placements) - 1))
+        displacement = float(points.displacement(correction[None])[0])
+        if (displacement - settings.misalignment_tolerance
+                <= statistics.normal_quantile(settings.significance) * spread):
+            continue
+        std = np.sqrt(np.median(np.diagonal(covariances[rows], axis1=1, axis2=2), axis=0))
+        found.append((rows, Misalignment(scans=moved, reference_scans=reference,
+                                         correction=correction, correction_std=std,
+                                         displacement=displacement, pairs=int(rows.size),
+                                         registered=True)))
+    return found
+
+
 # Coarse association gates (metres) before the local registration's own: a region beyond
 # local registration is displaced further than its submaps' gates reach (a turn of 5 degrees
 # moves points 20 m from its centre by 1.7 m), but registered as one, hundreds of scans onto
@@ -953,13 +1028,14 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     passes = _corrected_pairs_pass(scans, result, pairs, transforms)
     moments = PointMoments.of(scans)
     displacement = moments.displacement(transforms, pairs[:, 1])
-    codes = _classify(registrations, task_of_pair, passes, displacement, settings)
+    codes, rigid = _classify(registrations, task_of_pair, passes, displacement, settings)
     candidates = np.unique(task_of_pair[codes == _CLASS_CODE[MISALIGNED]])
     unconfirmed = np.ones(len(tasks), dtype=bool)
     unconfirmed[candidates] = ~corrections_confirmed(scans, result, tasks[candidates],
                                                      task_transforms[candidates], settings)
     # a correction that breaks as much as it mends explains nothing: the failure is a change
-    codes[(codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]] = _CLASS_CODE[CHANGE]
+    demoted = (codes == _CLASS_CODE[MISALIGNED]) & unconfirmed[task_of_pair]
+    codes[demoted] = _CLASS_CODE[CHANGE]
     misaligned = codes == _CLASS_CODE[MISALIGNED]
     unexplained = (codes == _CLASS_CODE[CHANGE]) | (codes == _CLASS_CODE[UNREGISTERED])
     # Changes are local: a scan most of whose overlaps fail beyond any small correction sees
@@ -973,6 +1049,14 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     regions = _regions(scans, result, rows, moments, bad, codes, transforms,
                        registrations.covariances[task_of_pair], task_of_pair, flagged, settings,
                        registration)
+    among_changes = rigid & ~demoted & (codes == _CLASS_CODE[CHANGE])
+    hidden = _regions_among_changes(scans, result, moments, pairs, among_changes, transforms,
+                                    registrations.covariances[task_of_pair], task_of_pair,
+                                    _region_scans(regions, scans.scan_count), settings,
+                                    registration)
+    for region_rows, _ in hidden:
+        codes[region_rows] = _CLASS_CODE[MISALIGNED]
+    regions = regions + tuple(region for _, region in hidden)
     # The tolerance is the map's: a region fails it by the displacement of its own correction,
     # however far the single registrations behind it strayed.
     within = [region.registered and region.displacement <= settings.misalignment_tolerance
