@@ -25,7 +25,7 @@ from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE,
                                              LOOP_CLOSURE_EVENT_TYPE, MARKER_ARRAY_TYPE,
-                                             NEW_NODE_EVENT_TYPE, PATH_TYPE,
+                                             NEW_NODE_EVENT_TYPE, PATH_TYPE, PathReader,
                                              POSE_COVARIANCE_TYPE, POSE_GRAPH_TYPE, POSE_TYPES,
                                              SCAN_TYPE, constraints_message,
                                              graph_markers_message, loop_closure_event_message,
@@ -269,11 +269,14 @@ class BagReader:
         counts: dict[str, int] = {}
         # the node's readers of the bytes (Paths, graph markers), where ROS 2 bags hold CDR
         raw_types = () if self.is_ros1 else tuple(CDR_RECORDS)
+        path_readers: dict[str, PathReader] = {}  # per topic, as the node's subscription
         for connection, timestamp, message in self._messages(self._selected(topics), raw_types):
             index = counts[connection.topic] = counts.get(connection.topic, 0) + 1
+            reader = (path_readers.setdefault(connection.topic, PathReader())
+                      if connection.msgtype == PATH_TYPE else None)
             try:
                 record = (record_from_cdr(connection.msgtype, message, self._deserialize,
-                                          self.max_range) if isinstance(message, bytes)
+                                          self.max_range, reader) if isinstance(message, bytes)
                           else to_record(connection.msgtype, message, self.max_range))
             except ValueError as error:
                 record = BadMessage(topic=connection.topic, index=index, reason=str(error))

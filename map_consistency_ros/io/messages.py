@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -173,6 +174,65 @@ def _pose_entries(values_offset: int) -> np.dtype:
                      'itemsize': values_offset + 8 * _POSE_VALUES})
 
 
+@dataclass(frozen=True)
+class _PathLayout:
+    """Where a serialized Path's entries lie in its CDR body (after the encapsulation)."""
+
+    frame_id: str
+    stamp: float  # the header's
+    count: int
+    first: int  # offset of the first entry in the body
+    head: np.dtype  # the first entry (4-aligned)
+    rest: np.dtype  # every later entry (8-aligned, evenly spaced)
+    frame_length: int  # of the entries' frame ids, which all share it
+
+    def end(self, count: int) -> int:
+        """The body offset just past the first `count` entries (count >= 1)."""
+        return self.first + self.head.itemsize + (count - 1) * self.rest.itemsize
+
+
+def _path_layout(body: memoryview) -> _PathLayout | None:
+    """The layout of a Path's CDR body, None for one path_from_cdr does not read."""
+    header_frame = int.from_bytes(body[8:12], 'little')
+    count_at = _align(12 + header_frame, 4)
+    if header_frame == 0 or count_at + 4 > len(body):
+        return None
+    frame_id = bytes(body[12:11 + header_frame]).decode('utf-8', errors='replace')
+    count = int.from_bytes(body[count_at:count_at + 4], 'little')
+    first = count_at + 4
+    # the header's stamp: sec (int32), nanosec (uint32) before its frame id
+    stamp = int.from_bytes(body[0:4], 'little', signed=True) + int.from_bytes(
+        body[4:8], 'little') * 1e-9
+    if count == 0:
+        return _PathLayout(frame_id, stamp, 0, first, _pose_entries(8), _pose_entries(8), 0)
+    if first + 12 > len(body):
+        return None
+    length = int.from_bytes(body[first + 8:first + 12], 'little')
+    # The first entry starts 4-aligned, every later one right after 8-aligned values: with
+    # one frame id length, the later ones are evenly spaced.
+    layout = _PathLayout(frame_id, stamp, count, first,
+                         _pose_entries(_align(first + 12 + length, 8) - first),
+                         _pose_entries(_align(12 + length, 8)), length)
+    return layout if layout.end(count) <= len(body) else None
+
+
+def _path_entries(body: memoryview, layout: _PathLayout, start: int
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(stamps, poses (., 3)) of entries start..count-1 of a Path body; None when one of
+    their frame ids differs in length from the first's."""
+    entries = [] if start else [np.frombuffer(body, dtype=layout.head, count=1,
+                                              offset=layout.first)]
+    later = max(start, 1)
+    entries.append(np.frombuffer(body, dtype=layout.rest, count=layout.count - later,
+                                 offset=layout.end(later)))
+    if any(np.any(entry['frame_length'] != layout.frame_length) for entry in entries):
+        return None
+    stamps = np.concatenate([entry['sec'] + entry['nanosec'] * 1e-9 for entry in entries])
+    values = np.concatenate([entry['values'] for entry in entries])
+    yaw = se2.yaw_from_quaternion(*values[:, 3:].T)
+    return stamps, np.column_stack([values[:, :2], yaw])
+
+
 def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
     """The record of a serialized nav_msgs/Path, read straight from its CDR bytes.
 
@@ -191,42 +251,89 @@ def path_from_cdr(data: bytes) -> KeyframeEstimate | None:
     layout this does not read (big endian, XCDR2, entries whose frame ids differ in length,
     a message shorter than its lengths say): the caller deserializes those.
     """
-    if len(data) < _ENCAPSULATION + 16 or bytes(data[:2]) != _CDR_LE:
-        return None
-    body = memoryview(data)[_ENCAPSULATION:]
-    header_frame = int.from_bytes(body[8:12], 'little')
-    count_at = _align(12 + header_frame, 4)
-    if header_frame == 0 or count_at + 4 > len(body):
-        return None
-    frame_id = bytes(body[12:11 + header_frame]).decode('utf-8', errors='replace')
-    count = int.from_bytes(body[count_at:count_at + 4], 'little')
-    first = count_at + 4
-    # the header's stamp: sec (int32), nanosec (uint32) before its frame id
-    stamp = int.from_bytes(body[0:4], 'little', signed=True) + int.from_bytes(
-        body[4:8], 'little') * 1e-9
-    if count == 0:
-        return KeyframeEstimate(stamps=np.zeros(0), poses=np.zeros((0, 3)), frame_id=frame_id,
-                                stamp=stamp)
-    if first + 12 > len(body):
-        return None
-    length = int.from_bytes(body[first + 8:first + 12], 'little')
-    # The first entry starts 4-aligned, every later one right after 8-aligned values: with
-    # one frame id length, the later ones are evenly spaced.
-    head = _pose_entries(_align(first + 12 + length, 8) - first)
-    rest = _pose_entries(_align(12 + length, 8))
-    second = first + head.itemsize
-    if second + (count - 1) * rest.itemsize > len(body):
-        return None
-    entries = [np.frombuffer(body, dtype=head, count=1, offset=first),
-               np.frombuffer(body, dtype=rest, count=count - 1, offset=second)]
-    frame_lengths = np.concatenate([entry['frame_length'] for entry in entries])
-    if np.any(frame_lengths != length):
-        return None
-    stamps = np.concatenate([entry['sec'] + entry['nanosec'] * 1e-9 for entry in entries])
-    values = np.concatenate([entry['values'] for entry in entries])
-    yaw = se2.yaw_from_quaternion(*values[:, 3:].T)
-    return KeyframeEstimate(stamps=stamps, poses=np.column_stack([values[:, :2], yaw]),
-                            frame_id=frame_id, stamp=stamp)
+    return PathReader()(data)
+
+
+class PathReader:
+    """path_from_cdr for one stream of Paths: the entries a Path repeats byte for byte from
+    the previous one are not decoded again.
+
+    A back-end sends its whole estimate every time, and between optimisations it only appends
+    poses: decoding every entry would make each Path cost more than the last, with the length
+    of the run. The repeated entries are found by comparing bytes (one pass of memory
+    comparison, several times cheaper than decoding them), and only the entries after them
+    are decoded. Any difference, in a pose, a stamp or the frame ids' length, decodes the
+    whole Path. Not thread-safe: one reader per subscription.
+    """
+
+    def __init__(self) -> None:
+        self._last: tuple[bytes, _PathLayout, np.ndarray, np.ndarray] | None = None
+        self._mask: tuple[tuple[int, int], np.ndarray] | None = None
+
+    def __call__(self, data: bytes) -> KeyframeEstimate | None:
+        """The record of serialized Path `data`, as path_from_cdr."""
+        if len(data) < _ENCAPSULATION + 16 or bytes(data[:2]) != _CDR_LE:
+            return None
+        body = memoryview(data)[_ENCAPSULATION:]
+        layout = _path_layout(body)
+        if layout is None:
+            return None
+        if layout.count == 0:
+            return KeyframeEstimate(stamps=np.zeros(0), poses=np.zeros((0, 3)),
+                                    frame_id=layout.frame_id, stamp=layout.stamp)
+        repeated = self._repeated(body, layout)
+        decoded = _path_entries(body, layout, repeated)
+        if decoded is None:
+            return None
+        stamps, poses = decoded
+        if repeated:
+            _, _, old_stamps, old_poses = self._last
+            stamps = np.concatenate([old_stamps[:repeated], stamps])
+            poses = np.concatenate([old_poses[:repeated], poses])
+        self._last = (data, layout, stamps, poses)
+        return KeyframeEstimate(stamps=stamps, poses=poses, frame_id=layout.frame_id,
+                                stamp=layout.stamp)
+
+    def _repeated(self, body: memoryview, layout: _PathLayout) -> int:
+        """How many leading entries `body` shares byte for byte with the last Path read (0
+        when the layouts differ or it does not start with all of the last one's)."""
+        if self._last is None:
+            return 0
+        data, last, _, _ = self._last
+        count = last.count
+        if (count == 0 or count > layout.count or last.first != layout.first
+                or last.frame_length != layout.frame_length):
+            return 0
+        start, end = layout.first, layout.end(count)
+        # Every byte but the alignment padding after each entry's frame id, which serializers
+        # leave as they find it: compared as 4-byte words (entries start 4-aligned in the
+        # body), each masked to its meaningful bytes.
+        words = (end - start) // 4
+        old = np.frombuffer(data, dtype='<u4', count=words, offset=_ENCAPSULATION + start)
+        new = np.frombuffer(body, dtype='<u4', count=words, offset=start)
+        head = layout.head.itemsize // 4
+        if np.any((old[:head] ^ new[:head]) & _entry_mask(layout.head, layout.frame_length)):
+            return 0
+        differ = old[head:] ^ new[head:]
+        differ &= self._rest_mask(layout, differ.size)
+        return 0 if differ.any() else count
+
+    def _rest_mask(self, layout: _PathLayout, words: int) -> np.ndarray:
+        """The masks of `words` words of evenly spaced entries: one flat array, kept (masking
+        a (count, words per entry) view entry by entry costs several times more)."""
+        key = (layout.rest.itemsize, layout.frame_length)
+        if self._mask is None or self._mask[0] != key or self._mask[1].size < words:
+            entry = _entry_mask(layout.rest, layout.frame_length)
+            self._mask = (key, np.tile(entry, 2 * -(-words // entry.size)))
+        return self._mask[1][:words]
+
+
+def _entry_mask(entry: np.dtype, frame_length: int) -> np.ndarray:
+    """(itemsize / 4,) little-endian word masks of a Path entry: 0xff on every byte but the
+    padding between its frame id's characters and its pose values."""
+    mask = np.full(entry.itemsize, 0xFF, dtype=np.uint8)
+    mask[12 + frame_length:entry.fields['values'][1]] = 0
+    return mask.view('<u4')
 
 
 def constraints_to_numpy(msg) -> np.ndarray:
@@ -544,7 +651,8 @@ CDR_RECORDS: dict[str, Callable[[bytes], Record | None]] = {
 
 
 def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str], object],
-                    max_range: float = math.inf) -> Record:
+                    max_range: float = math.inf,
+                    reader: Callable[[bytes], Record | None] | None = None) -> Record:
     """The record of serialized message `data` of a type in CDR_RECORDS: read from its bytes,
     or, for a layout the reader leaves, `deserialize(data, msgtype)` and to_record.
 
@@ -554,12 +662,13 @@ def record_from_cdr(msgtype: str, data: bytes, deserialize: Callable[[bytes, str
     data: the serialized message, 4-byte encapsulation header first.
     deserialize: deserialize(data, msgtype) -> message object, for the layouts left over.
     max_range: passed to to_record (only scans use it).
+    reader: the reader of the bytes instead of CDR_RECORDS[msgtype] (a stream's PathReader).
 
     Returns
     -------
     The core record. Raises ValueError for unusable content, as to_record.
     """
-    record = CDR_RECORDS[msgtype](data)
+    record = (reader or CDR_RECORDS[msgtype])(data)
     return to_record(msgtype, deserialize(data, msgtype), max_range) if record is None else record
 
 

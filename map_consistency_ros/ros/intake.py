@@ -82,6 +82,8 @@ class Intake:
         self._scans: deque[tuple[float, Scan]] = deque()
         self._poses: deque[tuple[float, PoseSample | GraphSnapshot]] = deque()
         self._estimate: tuple[float, KeyframeEstimate] | None = None
+        # the trajectory's Paths repeat the last one's entries: those are not decoded again
+        self._path_reader = messages.PathReader()
         self._constraints: tuple[float, Constraints] | None = None
         self._last_input: float | None = None
         self._problems = 0
@@ -213,10 +215,11 @@ class Intake:
         return self._record(topic, lambda: messages.to_record(msgtype, msg,
                                                               self._feed_settings.max_range))
 
-    def _convert_bytes(self, topic: str, msgtype: str, data: bytes):
-        """The record of a raw subscription's message (None when it was bad)."""
+    def _convert_bytes(self, topic: str, msgtype: str, data: bytes, reader=None):
+        """The record of a raw subscription's message (None when it was bad); `reader`: the
+        stream's reader of the bytes (messages.record_from_cdr)."""
         return self._record(topic, lambda: messages.record_from_cdr(
-            msgtype, data, _deserialized, self._feed_settings.max_range))
+            msgtype, data, _deserialized, self._feed_settings.max_range, reader))
 
     def _on_scan(self, msg) -> None:
         """Queue a scan; with the queue full, the oldest goes and counts as lost.
@@ -255,7 +258,7 @@ class Intake:
             and dropped, the estimate queued before it stays.
         """
         arrival = time.monotonic()
-        record = self._convert_bytes('trajectory', messages.PATH_TYPE, data)
+        record = self._convert_bytes('trajectory', messages.PATH_TYPE, data, self._path_reader)
         if record is not None:
             with self._lock:
                 # the full estimate: a newer one replaces it, and the wait counts from the

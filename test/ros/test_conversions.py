@@ -132,6 +132,41 @@ def test_path_layouts_the_byte_reader_leaves_to_the_deserializer(intel):
     assert messages.path_from_cdr(serialize_message(msg)) is None
 
 
+def test_a_path_reader_decodes_only_what_a_path_adds_and_reads_as_path_from_cdr(intel,
+                                                                             monkeypatch):
+    log, _ = intel
+    stamps, poses = log.timestamps[:60], log.laser_poses[:60]
+
+    def path(count, frame='map', entry_frame='base_link', moved=None):
+        msg = messages.path_message(message_class, stamps[:count], poses[:count], frame,
+                                    stamp=stamps[count - 1])
+        for entry in msg.poses:
+            entry.header.frame_id = entry_frame
+        if moved is not None:
+            msg.poses[moved].pose.position.x += 0.25  # an optimisation moved one pose
+        return serialize_message(msg)
+
+    decoded = []
+    entries = messages._path_entries
+    monkeypatch.setattr(messages, '_path_entries', lambda body, layout, start: (
+        decoded.append(layout.count - start) or entries(body, layout, start)))
+    reader = messages.PathReader()
+    stream = [path(10), path(25), path(25, frame='odo'), path(25, frame='odom'),
+              path(40, moved=3), path(41, moved=3), path(41, entry_frame='laser'),
+              path(50, entry_frame='laser'), path(5, entry_frame='laser')]
+    for data in stream:
+        fast, whole = reader(data), messages.PathReader()(data)
+        assert fast.frame_id == whole.frame_id and fast.stamp == whole.stamp
+        np.testing.assert_array_equal(fast.stamps, whole.stamps)
+        np.testing.assert_array_equal(fast.poses, whole.poses)
+    # each reader call decodes, then the stateless one decodes everything
+    by_reader = decoded[::2]
+    # 15 appended; a new header frame id of the same length keeps the entries; one of another
+    # length moves them, and a moved pose, a new entry frame id and a shorter Path change
+    # them: those decode everything
+    assert by_reader == [10, 15, 0, 25, 40, 1, 41, 9, 5]
+
+
 @pytest.mark.parametrize('vertices', [0, 1, 40])
 def test_graph_markers_read_from_their_bytes_as_rclpy_deserializes_them(intel, vertices):
     log, _ = intel
