@@ -61,12 +61,13 @@ def main() -> None:
     edges = np.linspace(0, counts[-1], BUCKETS + 1)
     for low, high in zip(edges[:-1], edges[1:]):
         inside = (counts > low) & (counts <= high)
+        ratio = np.median(whole[inside] / reader[inside])
         print(f'  {int(low) + 1:6d}-{int(high):6d}    {np.median(reader[inside]):6.3f}  '
-              f'{np.median(whole[inside]):6.3f}    {np.median(whole[inside] / reader[inside]):5.1f}')
-    last = counts > edges[-2]
-    first = counts <= edges[1]
-    print(f'  last / first bucket: reader {np.median(reader[last]) / np.median(reader[first]):.2f}, '
-          f'whole {np.median(whole[last]) / np.median(whole[first]):.2f}')
+              f'{np.median(whole[inside]):6.3f}    {ratio:5.1f}')
+    last, first = counts > edges[-2], counts <= edges[1]
+    growth = {name: np.median(times[last]) / np.median(times[first])
+              for name, times in (('reader', reader), ('whole', whole))}
+    print(f'  last / first bucket: reader {growth["reader"]:.2f}, whole {growth["whole"]:.2f}')
 
 
 if __name__ == '__main__':

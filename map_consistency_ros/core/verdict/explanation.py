@@ -712,8 +712,8 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
     return tuple(regions)
 
 
-def _regions_among_changes(scans: ScanSet, result: ConsistencyResult, moments: PointMoments,
-                           pairs: np.ndarray, among_changes: np.ndarray, transforms: np.ndarray,
+def _regions_among_changes(scans: ScanSet, moments: PointMoments, pairs: np.ndarray,
+                           among_changes: np.ndarray, transforms: np.ndarray,
                            covariances: np.ndarray, task_of_pair: np.ndarray,
                            taken: np.ndarray, settings: ExplanationSettings,
                            registration: RegistrationSettings | None
@@ -1050,7 +1050,7 @@ def explain(scans: ScanSet, result: ConsistencyResult,
                        registrations.covariances[task_of_pair], task_of_pair, flagged, settings,
                        registration)
     among_changes = rigid & ~demoted & (codes == _CLASS_CODE[CHANGE])
-    hidden = _regions_among_changes(scans, result, moments, pairs, among_changes, transforms,
+    hidden = _regions_among_changes(scans, moments, pairs, among_changes, transforms,
                                     registrations.covariances[task_of_pair], task_of_pair,
                                     _region_scans(regions, scans.scan_count), settings,
                                     registration)
