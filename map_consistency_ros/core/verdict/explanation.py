@@ -638,6 +638,39 @@ def _mostly_consecutive(pairs: np.ndarray, settings: ExplanationSettings) -> boo
     return bool(np.count_nonzero(pairs[:, 1] - pairs[:, 0] <= reach) * 2 > len(pairs))
 
 
+def _stretches(scan_count: int, pairs: np.ndarray, chosen: np.ndarray, chain: np.ndarray,
+               settings: ExplanationSettings
+               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The candidate regions of the `chosen` pairs (P,) bool over `pairs` (P, 2): groups
+    joined through their pairs and through the sorted scans `chain` at most a block apart,
+    kept when they are a stretch of at least `min_region_scans` keyframes in a row on both
+    sides (not scans out of place here and there, nor a revisit seen from one scan).
+
+    Returns
+    -------
+    [(rows of `pairs` in the group, its moved (later) scans, its reference scans)].
+    """
+    if not chosen.any():
+        return []
+    adjacent = np.stack([chain[:-1], chain[1:]], axis=1)[np.diff(chain) <= settings.block]
+    labels = _components(scan_count, np.concatenate([pairs[chosen], adjacent]))
+    groups = []
+    for label in np.unique(labels[pairs[chosen, 0]]):
+        rows = np.flatnonzero(chosen & (labels[pairs[:, 0]] == label))
+        moved = np.unique(pairs[rows, 1])
+        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
+        if min(longest_run(moved, settings.block),
+               longest_run(reference, settings.block)) >= settings.min_region_scans:
+            groups.append((rows, moved, reference))
+    return groups
+
+
+def _median_std(covariances: np.ndarray) -> np.ndarray:
+    """(3,) a region's 1-sigma: the square roots of the median variances of its
+    registrations' (E, 3, 3) covariances."""
+    return np.sqrt(np.median(np.diagonal(covariances, axis1=1, axis2=2), axis=0))
+
+
 def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
              moments: PointMoments, bad: np.ndarray, codes: np.ndarray,
              transforms: np.ndarray, covariances: np.ndarray, task_of_pair: np.ndarray,
@@ -646,20 +679,9 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
     """Misaligned regions from the explained pairs (rows `explained` of `result`)."""
     pairs = result.pairs[explained]
     on_flagged = bad & (flagged[pairs[:, 0]] | flagged[pairs[:, 1]])
-    if not on_flagged.any():
-        return ()
-    indices = np.flatnonzero(flagged)
-    adjacent = np.stack([indices[:-1], indices[1:]], axis=1)
-    adjacent = adjacent[np.diff(indices) <= settings.block]
-    labels = _components(scans.scan_count, np.concatenate([pairs[on_flagged], adjacent]))
     regions = []
-    for label in np.unique(labels[pairs[on_flagged, 0]]):
-        rows = np.flatnonzero(on_flagged & (labels[pairs[:, 0]] == label))
-        moved = np.unique(pairs[rows, 1])
-        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
-        if min(longest_run(moved, settings.block),
-               longest_run(reference, settings.block)) < settings.min_region_scans:
-            continue  # scans out of place here and there, or a revisit seen from one scan
+    for rows, moved, reference in _stretches(scans.scan_count, pairs, on_flagged,
+                                             np.flatnonzero(flagged), settings):
         registered_rows = rows[codes[rows] == _CLASS_CODE[MISALIGNED]]
         registered = False
         whole = None  # the whole region registered onto its reference, once it is needed
@@ -683,8 +705,7 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
                 whole = _register_region(scans, moved, reference, registration)
                 registered = whole.support >= settings.min_region_support
         if registered:
-            spread = np.sqrt(np.median(np.diagonal(covariances[registered_rows], axis1=1,
-                                                   axis2=2), axis=0))
+            spread = _median_std(covariances[registered_rows])
             displacement = float(moments.pooled(moved).displacement(correction[None])[0])
         else:
             # beyond registration, no correction corroborates it: a displaced stretch of the
@@ -746,19 +767,9 @@ def _regions_among_changes(scans: ScanSet, moments: PointMoments, pairs: np.ndar
     [(rows of `pairs` behind the region, the region)] for each region found.
     """
     candidates = among_changes & ~taken[pairs[:, 1]]
-    if not candidates.any():
-        return []
-    later = np.unique(pairs[candidates, 1])
-    adjacent = np.stack([later[:-1], later[1:]], axis=1)[np.diff(later) <= settings.block]
-    labels = _components(scans.scan_count, np.concatenate([pairs[candidates], adjacent]))
     found = []
-    for label in np.unique(labels[pairs[candidates, 0]]):
-        rows = np.flatnonzero(candidates & (labels[pairs[:, 0]] == label))
-        moved = np.unique(pairs[rows, 1])
-        reference = np.setdiff1d(np.unique(pairs[rows, 0]), moved)
-        if min(longest_run(moved, settings.block),
-               longest_run(reference, settings.block)) < settings.min_region_scans:
-            continue
+    for rows, moved, reference in _stretches(scans.scan_count, pairs, candidates,
+                                             np.unique(pairs[candidates, 1]), settings):
         points = moments.pooled(moved)
         correction = _consensus(points, transforms[rows])
         if (agreeing_registrations(moments, rows, pairs, transforms, task_of_pair, correction,
@@ -777,9 +788,9 @@ def _regions_among_changes(scans: ScanSet, moments: PointMoments, pairs: np.ndar
         if (displacement - settings.misalignment_tolerance
                 <= statistics.normal_quantile(settings.significance) * spread):
             continue
-        std = np.sqrt(np.median(np.diagonal(covariances[rows], axis1=1, axis2=2), axis=0))
         found.append((rows, Misalignment(scans=moved, reference_scans=reference,
-                                         correction=correction, correction_std=std,
+                                         correction=correction,
+                                         correction_std=_median_std(covariances[rows]),
                                          displacement=displacement, pairs=int(rows.size),
                                          registered=True)))
     return found
