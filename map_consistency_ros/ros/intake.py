@@ -215,7 +215,8 @@ class Intake:
         return self._record(topic, lambda: messages.to_record(msgtype, msg,
                                                               self._feed_settings.max_range))
 
-    def _convert_bytes(self, topic: str, msgtype: str, data: bytes, reader=None):
+    def _convert_bytes(self, topic: str, msgtype: str, data: bytes,
+                       reader: messages.PathReader | None = None):
         """The record of a raw subscription's message (None when it was bad); `reader`: the
         stream's reader of the bytes (messages.record_from_cdr)."""
         return self._record(topic, lambda: messages.record_from_cdr(

@@ -167,6 +167,30 @@ def test_a_path_reader_decodes_only_what_a_path_adds_and_reads_as_path_from_cdr(
     assert by_reader == [10, 15, 0, 25, 40, 1, 41, 9, 5]
 
 
+def test_a_path_reader_leaves_a_broken_path_to_the_deserializer_and_loses_nothing(intel):
+    log, _ = intel
+    stamps, poses = log.timestamps[:30], log.laser_poses[:30]
+
+    def path(count, odd_entry=None):
+        msg = messages.path_message(message_class, stamps[:count], poses[:count], 'map')
+        if odd_entry is not None:  # entries no longer evenly spaced
+            msg.poses[odd_entry].header.frame_id = 'odom'
+        return serialize_message(msg)
+
+    reader = messages.PathReader()
+    assert len(reader(path(10)).stamps) == 10
+    assert reader(path(20)[:-8]) is None  # shorter than its count says
+    assert reader(path(20, odd_entry=15)) is None  # an added entry of another layout
+    assert reader(b'\x01\x00' + path(20)[2:]) is None  # big endian
+    for count in (20, 25):  # the Paths after them read whole and right
+        data = path(count)
+        fast, whole = reader(data), messages.path_from_cdr(data)
+        np.testing.assert_array_equal(fast.stamps, whole.stamps)
+        np.testing.assert_array_equal(fast.poses, whole.poses)
+        slow = messages.to_record(messages.PATH_TYPE, deserialize_message(data, Path))
+        np.testing.assert_array_equal(fast.poses, slow.poses)
+
+
 @pytest.mark.parametrize('vertices', [0, 1, 40])
 def test_graph_markers_read_from_their_bytes_as_rclpy_deserializes_them(intel, vertices):
     log, _ = intel
