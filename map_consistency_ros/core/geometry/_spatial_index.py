@@ -205,16 +205,41 @@ class ScanExtentIndex:
         """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
         self._check_known(ids)
-        rows, neighbours = [], []
-        for scan_id in ids:
-            row = self._row[scan_id]
-            near = set().union(*(self._grid[cell] for cell in self._cells[scan_id]))
-            near.discard(row)
-            if near:
-                neighbours.append(np.fromiter(near, dtype=np.int64, count=len(near)))
-                rows.append(np.full(len(near), row, dtype=np.int64))
-        if not rows:
+        # One union over the cells of all `ids` (a burst of keyframes, a loop closure's moved
+        # scans mostly share cells), then every box of it against each of theirs, compiled:
+        # boxes that overlap share a cell, so no pair is lost, and the cost follows the scans
+        # near `ids`, not a Python set operation per id and neighbour.
+        cells = set().union(*(self._cells[scan_id] for scan_id in ids))
+        near = set().union(*(self._grid[cell] for cell in cells))
+        if not ids or not near:
             return np.zeros((0, 2), dtype=np.int64)
-        first, second = np.concatenate(rows), np.concatenate(neighbours)
-        overlapping = extents_overlap(self._boxes[first], self._boxes[second])
-        return _as_pairs(self._ids[first[overlapping]], self._ids[second[overlapping]])
+        rows = np.array([self._row[scan_id] for scan_id in ids], dtype=np.int64)
+        first, second = _overlapping(self._boxes, rows,
+                                     np.fromiter(near, dtype=np.int64, count=len(near)))
+        return _as_pairs(self._ids[first], self._ids[second])
+
+
+@numba.njit(cache=True)
+def _overlap(boxes: np.ndarray, row: int, other: int) -> bool:
+    """Whether two rows' boxes overlap (closed: touching counts, as extents_overlap)."""
+    return (boxes[row, 0] <= boxes[other, 2] and boxes[other, 0] <= boxes[row, 2]
+            and boxes[row, 1] <= boxes[other, 3] and boxes[other, 1] <= boxes[row, 3])
+
+
+@numba.njit(cache=True)
+def _overlapping(boxes: np.ndarray, rows: np.ndarray, near: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(row, other) for each of `rows` and each other row of `near` whose boxes overlap:
+    counted, then filled (a loop closure moves thousands of rows; no rows x near matrix)."""
+    count = 0
+    for row in rows:
+        for other in near:
+            count += other != row and _overlap(boxes, row, other)
+    first, second = np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64)
+    count = 0
+    for row in rows:
+        for other in near:
+            if other != row and _overlap(boxes, row, other):
+                first[count], second[count] = row, other
+                count += 1
+    return first, second

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 
 from map_consistency_ros.core.geometry import with_rows
@@ -61,11 +62,9 @@ class PartnerBudget:
             counts = np.bincount(later, minlength=slot_count)
             crowded = new[counts[new] > budget]
             if crowded.size:
-                kept = [_nearest_of_each_visit(pairs[later == slot, 0], slot, budget,
-                                               laser_poses)
-                        for slot in crowded]
                 self._budgeted[crowded] = True
-                self._kept = _sorted_insert(self._kept, np.concatenate(kept))
+                self._kept = _sorted_insert(
+                    self._kept, _nearest_of_each_visit(pairs, crowded, budget, laser_poses))
         budgeted = self._budgeted[pairs[:, 1]]
         if not budgeted.any():
             return pairs
@@ -75,24 +74,64 @@ class PartnerBudget:
         return pairs[keep]
 
 
-def _nearest_of_each_visit(partners: np.ndarray, slot: int, budget: int,
+def _nearest_of_each_visit(pairs: np.ndarray, slots: np.ndarray, budget: int,
                            laser_poses: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """Pair keys of `slot` with the nearest of its earlier `partners` in each visit: runs of
-    partners at most _VISIT_GAP slots apart (one pass through the place) share the budget
-    evenly, at least one pair each."""
-    partners = np.unique(partners)
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(partners) > _VISIT_GAP) + 1])
-    visit = np.zeros(partners.size, dtype=np.int64)
-    visit[starts[1:]] = 1
-    visit = np.cumsum(visit)
-    quota = max(budget // starts.size, 1)
-    laser = laser_poses(np.append(partners, slot))
-    distance = np.hypot(*(laser[:-1, :2] - laser[-1, :2]).T)
-    order = np.lexsort((distance, visit))  # by visit, nearest first
-    rank = np.empty(partners.size, dtype=np.int64)
-    rank[order] = np.arange(partners.size) - starts[visit[order]]
-    chosen = partners[rank < quota]
-    return pair_keys(chosen, np.full(chosen.size, slot))
+    """Pair keys of each of `slots` with the nearest of its earlier partners in `pairs` in
+    each visit: runs of partners at most _VISIT_GAP slots apart (one pass through the place)
+    share the budget evenly, at least one pair each (ties in distance: the earlier partner).
+
+    All the slots at once, compiled: a burst of keyframes in a place visited often is when the
+    budget bites, and a pass of numpy calls per slot cost as much as measuring the kept pairs.
+    """
+    slots = np.unique(slots)
+    partner, slot = _partners_by_slot(np.ascontiguousarray(pairs, dtype=np.int64), slots)
+    here = laser_poses(partner)
+    there = laser_poses(slots)[np.searchsorted(slots, slot)]
+    distance = np.hypot(*(here[:, :2] - there[:, :2]).T)
+    chosen = _nearest_in_visits(partner, slot, distance, budget, _VISIT_GAP)
+    return pair_keys(partner[chosen], slot[chosen])
+
+
+@numba.njit(cache=True)
+def _partners_by_slot(pairs: np.ndarray, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(partner, slot) of the pairs (partner, slot) of `pairs` that end at one of `slots`
+    (sorted), once each, ordered by slot, then partner."""
+    keys = np.empty(pairs.shape[0], dtype=np.int64)
+    count = 0
+    for row in range(pairs.shape[0]):
+        later = pairs[row, 1]
+        where = np.searchsorted(slots, later)
+        if where < slots.size and slots[where] == later:
+            keys[count] = (later << 31) | pairs[row, 0]
+            count += 1
+    keys = np.unique(keys[:count])
+    return keys & ((1 << 31) - 1), keys >> 31
+
+
+@numba.njit(cache=True)
+def _nearest_in_visits(partner: np.ndarray, slot: np.ndarray, distance: np.ndarray,
+                       budget: int, gap: int) -> np.ndarray:
+    """Which rows (ordered by slot, then partner) are among the max(budget // visits, 1)
+    nearest of their visit: a run of a slot's partners at most `gap` apart."""
+    rows = slot.size
+    chosen = np.zeros(rows, dtype=np.bool_)
+    start = 0
+    while start < rows:
+        end = start + 1
+        visits = 1
+        while end < rows and slot[end] == slot[start]:
+            visits += partner[end] - partner[end - 1] > gap
+            end += 1
+        quota = max(budget // visits, 1)
+        first = start
+        for row in range(start + 1, end + 1):
+            if row == end or partner[row] - partner[row - 1] > gap:
+                nearest = np.argsort(distance[first:row], kind='mergesort')  # stable
+                for rank in range(min(quota, row - first)):
+                    chosen[first + nearest[rank]] = True
+                first = row
+        start = end
+    return chosen
 
 
 def local_pair_keys(order: np.ndarray, new_ranks: np.ndarray, reach: int

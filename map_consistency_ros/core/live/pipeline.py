@@ -163,7 +163,8 @@ def warm_up() -> None:
     """Run the compiled kernels of both stages once, through a throwaway pipeline, on a made-up
     corridor: a walk down it, then a revisit of its start placed 3 degrees off (its local
     window sees no part of the corridor it is wrong against, so that the test flags it and the
-    second stage registers it).
+    second stage registers it). A partner budget of 2 makes the revisit crowded, so that the
+    budget's kernels run too.
 
     Loading the kernels from numba's cache costs the first call a few hundred milliseconds: a
     node pays it at start instead of on its first update.
@@ -174,7 +175,7 @@ def warm_up() -> None:
     poses = np.zeros((walk + revisit, 3))
     poses[:walk, 0] = np.linspace(0.0, 20.0, walk)
     poses[walk:, 0] = np.linspace(0.0, 0.2, revisit)
-    pipeline = LivePipeline()
+    pipeline = LivePipeline(monitor_settings=MonitorSettings(max_partners=2))
     for stamp, pose in enumerate(poses):
         pipeline.apply(Scan(stamp=float(stamp), ranges=_corridor_ranges(pose, bearings),
                             model=model))

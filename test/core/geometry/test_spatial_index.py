@@ -117,3 +117,15 @@ def test_index_rejects_bad_input():
     with pytest.raises(KeyError, match='scan 7'):
         index.pairs_touching([7])
     assert len(index) == 1 and 3 in index
+
+
+def test_index_pairs_boxes_that_only_touch_and_none_of_a_scan_alone():
+    index = ScanExtentIndex(1.0)
+    # 1 touches 0 at an edge, 2 touches 1 at a corner only, 3 is far away
+    boxes = np.array([[0.0, 0.0, 1.0, 1.0], [1.0, 0.5, 2.0, 1.5], [2.0, 1.5, 3.0, 2.5],
+                      [10.0, 10.0, 11.0, 11.0]])
+    index.update(np.array([7, 8, 9, 4]), boxes)
+    assert index.pairs_touching(np.array([8])).tolist() == [[7, 8], [8, 9]]
+    assert index.pairs_touching(np.array([7, 8])).tolist() == [[7, 8], [8, 9]]
+    assert index.pairs_touching(np.array([4])).shape == (0, 2)
+    assert index.pairs_touching(np.zeros(0, dtype=np.int64)).shape == (0, 2)

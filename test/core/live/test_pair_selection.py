@@ -22,6 +22,22 @@ def test_a_crowded_keyframe_keeps_the_nearest_of_each_visit_stably():
     assert sorted(again.tolist()) == kept.tolist()
 
 
+def test_keyframes_crowded_in_one_update_keep_what_each_would_alone():
+    rng = np.random.default_rng(4)
+    poses = rng.uniform(-5, 5, (60, 3))
+    laser = lambda slots: poses[np.asarray(slots)]  # noqa: E731
+    # slots 50..59 arrive at once, each overlapping a random two or three runs of earlier ones
+    pairs = np.array(sorted({(partner, slot) for slot in range(50, 60)
+                             for start in rng.choice(45, 3, replace=False)
+                             for partner in range(start, start + int(rng.integers(2, 9)))}))
+    together = PartnerBudget(max_partners=6).select(pairs, np.arange(50, 60), 60, laser)
+    alone = PartnerBudget(max_partners=6)
+    one_by_one = np.concatenate([alone.select(pairs[pairs[:, 1] == slot], np.array([slot]), 60,
+                                              laser) for slot in range(50, 60)])
+    np.testing.assert_array_equal(together, one_by_one[np.lexsort(one_by_one.T[::-1])])
+    assert len(together) < len(pairs)  # the budget bit
+
+
 def test_keyframes_within_the_budget_and_no_budget_keep_every_pair():
     pairs = np.array([[0, 3], [1, 3], [2, 3]])
     np.testing.assert_array_equal(

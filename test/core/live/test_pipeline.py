@@ -123,16 +123,18 @@ def test_warm_up_loads_every_kernel_of_both_stages():
     # the modules that hold the kernels, through the public functions they define
     probe = ('import sys\n'
              'from map_consistency_ros.core.consistency import statistics\n'
-             'from map_consistency_ros.core.geometry import pair_measures\n'
-             'from map_consistency_ros.core.live import warm_up\n'
+             'from map_consistency_ros.core.geometry import ScanExtentIndex, pair_measures\n'
+             'from map_consistency_ros.core.live import _pair_selection, warm_up\n'
              'from map_consistency_ros.core.verdict import register_submaps\n'
              'warm_up()\n'
              'measure = sys.modules[pair_measures.__module__]\n'
              'registration = sys.modules[register_submaps.__module__]\n'
+             'index = sys.modules[ScanExtentIndex.__module__]\n'
              'kernels = [measure._pair_kernel, measure._pairs_distances, '
              'registration._thin_ranges, registration._register_tasks, '
-             'statistics._critical_counts]\n'
+             'statistics._critical_counts, index._overlapping, '
+             '_pair_selection._partners_by_slot, _pair_selection._nearest_in_visits]\n'
              'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
                           check=True)
-    assert done.stdout.strip() == '1,1,1,1,1'
+    assert done.stdout.strip() == '1,1,1,1,1,1,1,1'
