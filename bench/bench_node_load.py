@@ -1,7 +1,8 @@
 """Load on the live node: real logs streamed over DDS into the node process.
 
     .venv/bin/python bench/bench_node_load.py [--logs intel fr079] [--rates 100 400]
-                                              [--path-every 10] [--scans N] [--no-reference]
+                                              [--path-every 10] [--repeat N] [--scans N]
+                                              [--no-reference]
                                               [--executors events multi_threaded]
                                               [-p NAME:=VALUE ...]
 
@@ -9,14 +10,16 @@ For each log and rate a fresh node process (defaults of config/map_consistency.y
 log's scans at the rate and, every `--path-every` scans, the growing keyframe Path of the
 corrected poses (the node's contract: the full estimate each time), as a SLAM back-end would
 publish them. Streaming starts when the node's diagnostics say `ready` (its compiled kernels
-loaded). Printed per run: the node's start-up (launch -> ready), keyframes registered / scans
-sent, scans the node reports lost (`lost scans` and `poses without scan` of /diagnostics), the
-node's update latency (arrival of the Path -> verdict published, from ~/report) as median / p99
-overall and per map-size bucket with the time per stage (monitor update, snapshot, markers,
-publishing), the node's peak RSS, and the time SIGINT takes to end it, beside the same Path
-updates through the feed in-process, its scans applied at the stream's rate (the reference),
-and back to back. Targets (issue 12): at 400 scans/s every scan a keyframe or the loss
-reported; median < 10 ms and p99 < 50 ms at 100 scans/s.
+loaded). Printed per node run: its start-up (launch -> ready), keyframes registered / scans
+sent, scans it reports lost (`lost scans` and `poses without scan` of /diagnostics), its peak
+RSS and the time SIGINT takes to end it. Then the update latency (arrival of the Path ->
+verdict published, from ~/report) as median / p99 overall and per map-size bucket with the time
+per stage (monitor update, snapshot, markers, publishing), beside the same Path updates through
+the feed in-process, its scans applied at the stream's rate (the reference), and back to back.
+With `--repeat N`, N fresh nodes (and N paced references) get the stream and their updates are
+pooled; the last / first bucket ratio of each run is printed beside the pooled one. Targets
+(issue 12): at 400 scans/s every scan a keyframe or the loss reported; median < 10 ms and
+p99 < 50 ms at 100 scans/s.
 
 Paths are pre-serialized (a prefix of the full Path's CDR bytes, so the publisher keeps pace);
 the publisher and the node share the machine, so latencies are upper bounds.
@@ -33,6 +36,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -163,30 +167,36 @@ def in_process(stamps, ranges, poses, model, path_every: int, threads: int,
     return np.array(seconds), np.array(sizes)
 
 
-def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
-        executor: str, parameters: list[str], spacing: float) -> None:
+@dataclass
+class NodeRun:
+    """What one node process did with the stream."""
+
+    startup: float  # launch -> ready, seconds
+    ready: bool
+    streamed: float  # seconds
+    waited: float  # seconds after the stream, for the node to catch up
+    rss: float  # peak, MiB
+    status: dict  # the last /diagnostics values
+    reports: list  # every ~/report, parsed
+    stop_seconds: float  # SIGINT -> exit
+    returncode: int
+    answered: str  # what the retune call got
+    retuning: bool  # SIGINT came during the retune
+
+
+def stream_to_node(stamps, poses, scans, rate: float, path_every: int, executor: str,
+                   parameters: list[str]) -> NodeRun:
+    """Launch a node, stream `scans` (CDR) at `rate` with a Path every `path_every`, retune, stop
+    it with SIGINT; what it did."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rclpy.serialization import serialize_message
     from std_srvs.srv import Trigger
 
-    from map_consistency_ros.core.geometry import se2, viewpoint_rows
+    from map_consistency_ros.core.geometry import se2
     from map_consistency_ros.io import messages
-    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
     from map_consistency_ros.ros.conversions import message_class
 
-    log = read_carmen_log(LOGS[name])
-    model = sensor_model(log)
-    count = log.scan_count if limit is None else min(limit, log.scan_count)
-    order = np.argsort(log.timestamps[:count], kind='stable')  # a driver stamps in order
-    if spacing > 0.0:  # the stream of a stack that keyframes every `spacing` metres
-        order = order[viewpoint_rows(log.laser_poses[order], spacing, spacing)]
-        count = order.size
-    stamps, poses, ranges = (log.timestamps[order], log.laser_poses[order],
-                             log.ranges[order])
-    scans = [serialize_message(messages.scan_message(message_class, stamps[k], ranges[k], model))
-             for k in range(count)]
+    count = len(scans)
     prefix = path_prefixes(stamps, poses)
-
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 200)),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     launched = time.monotonic()
@@ -259,6 +269,114 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         observer.close()
         if node.poll() is None:
             node.kill()
+    return NodeRun(startup=startup, ready=ready, streamed=streamed, waited=waited, rss=rss,
+                   status=status, reports=reports, stop_seconds=stop_seconds,
+                   returncode=node.returncode, answered=answered, retuning=retuning)
+
+
+def run(name: str, rate: float, path_every: int, limit: int | None, reference: bool,
+        executor: str, parameters: list[str], spacing: float, repeat: int) -> None:
+    from rclpy.serialization import serialize_message
+
+    from map_consistency_ros.core.geometry import viewpoint_rows
+    from map_consistency_ros.io import messages
+    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+    from map_consistency_ros.ros.conversions import message_class
+
+    log = read_carmen_log(LOGS[name])
+    model = sensor_model(log)
+    count = log.scan_count if limit is None else min(limit, log.scan_count)
+    order = np.argsort(log.timestamps[:count], kind='stable')  # a driver stamps in order
+    if spacing > 0.0:  # the stream of a stack that keyframes every `spacing` metres
+        order = order[viewpoint_rows(log.laser_poses[order], spacing, spacing)]
+        count = order.size
+    stamps, poses, ranges = (log.timestamps[order], log.laser_poses[order],
+                             log.ranges[order])
+    scans = [serialize_message(messages.scan_message(message_class, stamps[k], ranges[k], model))
+             for k in range(count)]
+    runs = [stream_to_node(stamps, poses, scans, rate, path_every, executor, parameters)
+            for _ in range(repeat)]
+
+    sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
+    print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s, a Path every '
+          f'{path_every} scans, executor {executor}'
+          + ''.join(f', {value}' for value in parameters)
+          + (f'; {repeat} node runs, their updates pooled' if repeat > 1 else ''))
+    updates = []  # (latency ms, keyframes, timing) of every update of every run
+    explanations = []  # (keyframes judged, seconds) of every explanation of every run
+    run_buckets = []  # per run: the median latency of each map-size bucket
+    for number, node_run in enumerate(runs, 1):
+        print(f'  run {number}' if repeat > 1 else '', end='\n' if repeat > 1 else '')
+        reports = print_run(node_run, count)
+        latency = np.array([r['update_latency_s'] for r in reports]) * 1e3
+        sizes = np.array([r['keyframes'] for r in reports])  # map size: viewpoints
+        updates += [(ms, r['keyframes'], r['timing']) for ms, r in zip(latency, reports)]
+        explanations += [(r['judged_keyframes'], r['timing']['explanation_s'])
+                         for r in node_run.reports if 'explanation_s' in r['timing']]
+        if latency.size:
+            run_buckets.append([np.median(latency[inside])
+                                for _, _, inside in map_size_buckets(sizes)])
+    latency = np.array([ms for ms, _, _ in updates])
+    if latency.size:
+        print(f'  update latency (ms)                  median {np.median(latency):.1f}, '
+              f'p99 {np.percentile(latency, 99):.1f}, max {latency.max():.1f} over '
+              f'{latency.size} updates (target: median < 10, p99 < 50)')
+        sizes = np.array([size for _, size, _ in updates])
+        timings = [timing for _, _, timing in updates]
+        buckets = []
+        print('  keyframes        updates  median  p99   | queued monitor snapshot markers '
+              'publish (median ms) | second stage (median ms per explanation)')
+        for low, high, inside in map_size_buckets(sizes):
+            stage = {key: np.median([timing.get(key, 0.0) for timing, keep in
+                                     zip(timings, inside) if keep]) * 1e3
+                     for key in ('queued_s', 'monitor_s', 'snapshot_s', 'markers_s', 'publish_s')}
+            explained = np.median([seconds for judged, seconds in explanations
+                                   if low < judged <= high] or [np.nan]) * 1e3
+            buckets.append(np.median(latency[inside]))
+            print(f'  {int(low) + 1:>5}-{int(high):<5}  {inside.sum():>8}  '
+                  f'{np.median(latency[inside]):6.1f} {np.percentile(latency[inside], 99):6.1f}'
+                  f' | {stage["queued_s"]:6.1f} {stage["monitor_s"]:7.1f} '
+                  f'{stage["snapshot_s"]:8.1f} {stage["markers_s"]:7.1f} '
+                  f'{stage["publish_s"]:7.1f} | {explained:7.1f}')
+        each_run = ('' if repeat == 1 else ' (each run: ' + ', '.join(
+            f'{medians[-1] / medians[0]:.2f}' for medians in run_buckets) + ')')
+        print(f'  last / first map-size bucket, median latency: '
+              f'{buckets[-1] / buckets[0]:.2f}{each_run} (target <= 1.5: flat in map size)')
+        if len(buckets) > 2:
+            # the first bucket is a young map: its keyframes overlap fewer earlier ones than
+            # the partner budget keeps later
+            print(f'  last / second bucket {buckets[-1] / buckets[1]:.2f}, largest / smallest '
+                  f'of the buckets after the first {max(buckets[1:]) / min(buckets[1:]):.2f}')
+    if reference:
+        from map_consistency_ros.core.configuration import NodeSettings
+        threads = next((int(value.split(':=')[1]) for value in parameters
+                        if value.startswith('update_threads:=')), NodeSettings().update_threads)
+        paced = [in_process(stamps, ranges, poses, model, path_every, threads, rate)
+                 for _ in range(repeat)]
+        alone = np.concatenate([seconds for seconds, _ in paced]) * 1e3
+        alone_sizes = np.concatenate([sizes for _, sizes in paced])
+        hot = in_process(stamps, ranges, poses, model, path_every, threads)[0] * 1e3
+        alone_buckets = [np.median(alone[inside])
+                         for _, _, inside in map_size_buckets(alone_sizes)]
+        print(f'  reference: the same Path updates in-process, no ROS, the scans applied at '
+              f'{rate:g} scans/s as streamed'
+              + (f' ({repeat} runs pooled)' if repeat > 1 else '') +
+              f': median {np.median(alone):.1f} ms, p99 '
+              f'{np.percentile(alone, 99):.1f} ms ({path_every} keyframes each, kernels on '
+              f'{threads or "every"} thread(s) as the node\'s updates); back to back, warm: '
+              f'median {np.median(hot):.1f} ms, p99 {np.percentile(hot, 99):.1f} ms')
+        print(f'  in-process (paced) last / first map-size bucket, median: '
+              f'{alone_buckets[-1] / alone_buckets[0]:.2f}')
+        if latency.size:
+            print(f'  node / in-process median latency: '
+                  f'{np.median(latency) / np.median(alone):.2f} (target <= 1.5); node / back to '
+                  f'back {np.median(latency) / np.median(hot):.2f}')
+
+
+def print_run(node_run: NodeRun, count: int) -> list[dict]:
+    """Print what one node run did with `count` scans (start-up, losses, memory, stopping);
+    its reports, one per update (the first of each)."""
+    reports, status = node_run.reports, node_run.status
     # the newest update's report: the second stage publishes too, and may land last with the
     # counts of the older snapshot it judged
     newest = max(reports, key=lambda report: report['updates']) if reports else {}
@@ -266,20 +384,17 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     # map changed, and scans folded into a viewpoint at the end change no map
     keyframes = int(status.get('scans', newest.get('keyframes', 0)))
     folded = int(status.get('folded keyframes', newest.get('folded_keyframes', 0)))
-    sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
-    print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s (streamed in '
-          f'{streamed:.1f} s), a Path every {path_every} scans, executor {executor}'
-          + ''.join(f', {value}' for value in parameters))
-    print(f'  node start-up (launch -> ready)      {startup:.2f} s'
-          + ('' if ready else ' (NOT READY: streamed after the 120 s deadline)'))
+    print(f'  node start-up (launch -> ready)      {node_run.startup:.2f} s'
+          + ('' if node_run.ready else ' (NOT READY: streamed after the 120 s deadline)'))
     print(f'  keyframes registered / scans sent   {keyframes + folded} / {count} '
-          f'({keyframes} viewpoints, {folded} folded into them)')
+          f'({keyframes} viewpoints, {folded} folded into them; streamed in '
+          f'{node_run.streamed:.1f} s)')
     print(f'  reported lost                        lost scans {status.get("lost scans")}, '
           f'poses without scan {status.get("poses without scan")}, '
           f'missing from stamps {status.get("scans missing from stamps")}')
     waiting = int(status.get('queued scans', 0)) + int(status.get('buffered scans', 0))
     print(f'  still waiting in the node (behind)   {waiting} scans queued or buffered after '
-          f'{waited:.0f} s')
+          f'{node_run.waited:.0f} s')
     honest = keyframes + folded == count or (
         int(status.get('lost scans', 0)) + waiting + int(status.get('poses without scan', 0))
         >= count - keyframes - folded)
@@ -291,64 +406,14 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     for report in reports:
         if report['updates']:
             first_reports.setdefault(report['updates'], report)
-    explanations = [(r['judged_keyframes'], r['timing']['explanation_s']) for r in reports
-                    if 'explanation_s' in r['timing']]
-    reports = list(first_reports.values())
-    latency = np.array([r['update_latency_s'] for r in reports]) * 1e3
-    if latency.size:
-        # ~/report is latched with depth 1: a report replaced before it reached the observer
-        # is missing here, its update not
-        print(f'  update latency (ms)                  median {np.median(latency):.1f}, '
-              f'p99 {np.percentile(latency, 99):.1f}, max {latency.max():.1f} '
-              f'over {latency.size} of {published} updates '
-              '(target: median < 10, p99 < 50)')
-        sizes = np.array([r['keyframes'] for r in reports])  # map size: viewpoints
-        buckets = []
-        print('  keyframes        updates  median  p99   | queued monitor snapshot markers '
-              'publish (median ms) | second stage (median ms per explanation)')
-        for low, high, inside in map_size_buckets(sizes):
-            stage = {key: np.median([r['timing'].get(key, 0.0) for r, keep in
-                                     zip(reports, inside) if keep]) * 1e3
-                     for key in ('queued_s', 'monitor_s', 'snapshot_s', 'markers_s', 'publish_s')}
-            explained = np.median([seconds for judged, seconds in explanations
-                                   if low < judged <= high] or [np.nan]) * 1e3
-            buckets.append(np.median(latency[inside]))
-            print(f'  {int(low) + 1:>5}-{int(high):<5}  {inside.sum():>8}  '
-                  f'{np.median(latency[inside]):6.1f} {np.percentile(latency[inside], 99):6.1f}'
-                  f' | {stage["queued_s"]:6.1f} {stage["monitor_s"]:7.1f} '
-                  f'{stage["snapshot_s"]:8.1f} {stage["markers_s"]:7.1f} '
-                  f'{stage["publish_s"]:7.1f} | {explained:7.1f}')
-        print(f'  last / first map-size bucket, median latency: '
-              f'{buckets[-1] / buckets[0]:.2f} (target <= 1.5: flat in map size)')
-        if len(buckets) > 2:
-            # the first bucket is a young map: its keyframes overlap fewer earlier ones than
-            # the partner budget keeps later
-            print(f'  last / second bucket {buckets[-1] / buckets[1]:.2f}, largest / smallest '
-                  f'of the buckets after the first {max(buckets[1:]) / min(buckets[1:]):.2f}')
-    if reference:
-        from map_consistency_ros.core.configuration import NodeSettings
-        threads = next((int(value.split(':=')[1]) for value in parameters
-                        if value.startswith('update_threads:=')), NodeSettings().update_threads)
-        alone, alone_sizes = in_process(stamps, ranges, poses, model, path_every, threads, rate)
-        alone *= 1e3
-        hot = in_process(stamps, ranges, poses, model, path_every, threads)[0] * 1e3
-        alone_buckets = [np.median(alone[inside])
-                         for _, _, inside in map_size_buckets(alone_sizes)]
-        print(f'  reference: the same Path updates in-process, no ROS, the scans applied at '
-              f'{rate:g} scans/s as streamed: median {np.median(alone):.1f} ms, p99 '
-              f'{np.percentile(alone, 99):.1f} ms ({path_every} keyframes each, kernels on '
-              f'{threads or "every"} thread(s) as the node\'s updates); back to back, warm: '
-              f'median {np.median(hot):.1f} ms, p99 {np.percentile(hot, 99):.1f} ms')
-        print(f'  in-process (paced) last / first map-size bucket, median: '
-              f'{alone_buckets[-1] / alone_buckets[0]:.2f}')
-        if latency.size:
-            print(f'  node / in-process median latency: '
-                  f'{np.median(latency) / np.median(alone):.2f} (target <= 1.5); node / back to '
-                  f'back {np.median(latency) / np.median(hot):.2f}')
-    print(f'  node peak RSS                        {rss:.0f} MiB')
-    state = 'during a retune' if retuning else 'after the retune'
-    print(f'  SIGINT -> exit, {state:<20} {stop_seconds:.2f} s (exit code {node.returncode}; '
-          f'the retune call got {answered!r})   (target < 1 s)')
+    # ~/report is latched with depth 1: a report replaced before it reached the observer is
+    # missing here, its update not
+    print(f'  updates reported / published         {len(first_reports)} / {published}')
+    print(f'  node peak RSS                        {node_run.rss:.0f} MiB')
+    state = 'during a retune' if node_run.retuning else 'after the retune'
+    print(f'  SIGINT -> exit, {state:<20} {node_run.stop_seconds:.2f} s (exit code '
+          f'{node_run.returncode}; the retune call got {node_run.answered!r})   (target < 1 s)')
+    return list(first_reports.values())
 
 
 def main() -> None:
@@ -359,6 +424,10 @@ def main() -> None:
     parser.add_argument('--keyframe-spacing', type=float, default=0.0, metavar='METRES',
                         help="stream only keyframes this far apart (and as many radians), as a "
                              "stack that keyframes would; 0: every scan of the log")
+    parser.add_argument('--repeat', type=int, default=1, metavar='N',
+                        help='stream to N fresh nodes (and run the in-process reference N '
+                             'times) and pool their updates: a keyframed stream has about 13 '
+                             'updates per map-size bucket, too few for a stable median')
     parser.add_argument('--scans', type=int, default=None, help='only the first N scans')
     parser.add_argument('--no-reference', action='store_true',
                         help='skip the in-process reference (minutes on Freiburg 079)')
@@ -374,7 +443,7 @@ def main() -> None:
         for rate in args.rates:
             for executor in args.executors:
                 run(name, rate, args.path_every, args.scans, not args.no_reference, executor,
-                    args.parameter, args.keyframe_spacing)
+                    args.parameter, args.keyframe_spacing, args.repeat)
 
 
 if __name__ == '__main__':
