@@ -11,7 +11,9 @@ the second stage's registration cache and both stages:
 - `explain(snapshot)`: the second stage on a snapshot, as a LiveVerdict that carries the
   snapshot, the Assessment and the snapshot's scans placed in the world. They are placed once,
   here, for the explanation, and whatever draws or reports the verdict (the node's markers,
-  replay's figures and report) takes them from the verdict.
+  replay's figures and report) takes them from the verdict. The second stage weighs the first
+  stage's result with every pair of its flagged scans measured (_flagged_pairs.py): the
+  partner budget bounds what an update costs, not the evidence of the verdict.
 
 Nothing is evaluated as a side effect of applying or reading. `apply`, `reset`, `recompute` and
 `evaluate` belong to one thread (the monitor is not thread-safe); `explain` may run on another,
@@ -30,6 +32,7 @@ import numpy as np
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.core.live._feed import Applied, FeedSettings, MonitorFeed
+from map_consistency_ros.core.live._flagged_pairs import FlaggedPairs
 from map_consistency_ros.core.live._records import KeyframeEstimate, Record, Scan
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    MonitorSnapshot, UpdateSummary)
@@ -84,6 +87,8 @@ class LivePipeline:
         # registrations of this session's maps: a live map changes a little per keyframe, so
         # most of them still hold at the next explanation (replaced on a reset)
         self._registrations = RegistrationCache()
+        # the pairs of flagged scans that the partner budget left out (_flagged_pairs.py)
+        self._flagged_pairs = FlaggedPairs()
         self._explaining = threading.Lock()
 
     @property
@@ -105,7 +110,7 @@ class LivePipeline:
         """
         applied = self.feed.apply(record)
         if applied.reset:
-            self._registrations = RegistrationCache()
+            self._forget_explanations()
         return applied
 
     def reset(self, reason: str) -> None:
@@ -116,7 +121,11 @@ class LivePipeline:
         reason: why (the feed keeps it as `last_reset`).
         """
         self.feed.reset(reason)
+        self._forget_explanations()
+
+    def _forget_explanations(self) -> None:
         self._registrations = RegistrationCache()
+        self._flagged_pairs = FlaggedPairs()
 
     def recompute(self) -> UpdateSummary:
         """Measure every pair again from scratch (ConsistencyMonitor.recompute).
@@ -153,7 +162,8 @@ class LivePipeline:
         with self._explaining:
             start = time.perf_counter()
             scans = snapshot.scans()
-            assessment = explain_map(scans, snapshot.result, self.explanation,
+            result = self._flagged_pairs.complete(scans, snapshot.ids, snapshot.result)
+            assessment = explain_map(scans, result, self.explanation,
                                      cache=self._registrations)
             return LiveVerdict(snapshot=snapshot, assessment=assessment, scans=scans,
                                seconds=time.perf_counter() - start)
@@ -164,7 +174,8 @@ def warm_up() -> None:
     corridor: a walk down it, then a revisit of its start placed 3 degrees off (its local
     window sees no part of the corridor it is wrong against, so that the test flags it and the
     second stage registers it). A partner budget of 2 makes the revisit crowded, so that the
-    budget's kernels run too.
+    budget's kernels run too, and so do those that find the pairs it left out of the flagged
+    scans for the second stage.
 
     Loading the kernels from numba's cache costs the first call a few hundred milliseconds: a
     node pays it at start instead of on its first update.

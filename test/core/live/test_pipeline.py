@@ -132,9 +132,9 @@ def test_warm_up_loads_every_kernel_of_both_stages():
              'index = sys.modules[ScanExtentIndex.__module__]\n'
              'kernels = [measure._pair_kernel, measure._pairs_distances, '
              'registration._thin_ranges, registration._register_tasks, '
-             'statistics._critical_counts, index._overlapping, '
+             'statistics._critical_counts, index._overlapping, index._sweep_pairs, '
              '_pair_selection._partners_by_slot, _pair_selection._nearest_in_visits]\n'
              'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
                           check=True)
-    assert done.stdout.strip() == '1,1,1,1,1,1,1,1'
+    assert done.stdout.strip() == '1,1,1,1,1,1,1,1,1'
