@@ -24,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the streamed logs of the node bench
+from bench_node_load import DATA, LOGS as STREAMED, REPO  # noqa: E402
+
 sys.path.insert(0, str(REPO))
-DATA = REPO.parent / 'shared' / 'data'
-LOGS = {'intel-native': REPO / 'data' / 'density' / 'intel-native.log.gz',
-        'intel': DATA / 'intel' / 'intel.gfs.log',
-        'fr079': DATA / 'fr079' / 'freiburg-079-corrected.log.gz',
+LOGS = {**STREAMED,
         'fr101': DATA / 'carmen_corrected_extra' / 'freiburg-101-corrected.log.gz',
         'belgioioso': DATA / 'carmen_corrected_extra' / 'belgioioso-corrected.log.gz',
         'orebro': DATA / 'carmen_corrected_extra' / 'orebro-corrected.log.gz'}

@@ -4,13 +4,12 @@ The monitor measures a new viewpoint against at most `max_partners` earlier ones
 of each earlier visit of its place), which bounds the cost of an update. The paper's test can
 flag a scan on that sample, but the second stage weighs the evidence: it registers the
 submaps around the failed pairs and asks whether their corrections agree. On a sample it can
-find agreement that every pair of those scans refutes (Intel at its native rate with 2 % of the
-scans lost: a 0.11-0.14 m region at a budget of 50 on three of six loss patterns, none with
-every pair, none in `check`; docs/node.md, `bench/budget_probe.py`). So before the second stage runs, the
-pairs of every flagged scan that the budget left out are measured at the snapshot's poses and
-tested with the snapshot's scales, as `check` measures and tests them, and so are those of
-every scan they flag in turn: the explanation then sees what `check` would see around the
-scans it explains, whatever the budget.
+find agreement that every pair of those scans refutes, and the verdict then moves with the
+budget (docs/node.md, "Viewpoints and a budget per keyframe"). So before the second stage
+runs, the pairs of every flagged scan that the budget left out are measured at the snapshot's
+poses and tested with the snapshot's scales, as `check` measures and tests them, and so are
+those of every scan they flag in turn: the explanation then sees what `check` would see around
+the scans it explains, whatever the budget.
 
 Invariant: the completed result holds every pair of the snapshot's result, unchanged in
 measure, and every pair with a scan flagged by the snapshot's test or by the completed one
@@ -26,15 +25,14 @@ import numpy as np
 from map_consistency_ros.core.consistency import (ConsistencyParameters, ConsistencyResult,
                                                   evaluate_pairs, robust_sums)
 from map_consistency_ros.core.geometry import PairMeasures, ScanSet, candidate_pairs, measure_pairs
-
-_ID_SHIFT = np.int64(1) << np.int64(32)  # a pair's key: id_i * 2^32 + id_j (ids < 2^31)
+from map_consistency_ros.core.live._pair_cache import pair_keys
 
 
 class FlaggedPairs:
     """The pairs the budget left out around flagged scans, measured once per pose."""
 
     def __init__(self) -> None:
-        self._keys = np.zeros(0, dtype=np.int64)  # sorted
+        self._keys = np.zeros(0, dtype=np.int64)  # pair_keys of keyframe ids, sorted
         self._poses = np.zeros((0, 6))  # both scans' poses when measured
         self._sums = np.zeros((0, 4))  # M_ij, n_ij, trimmed M_ij, trimmed n_ij
 
@@ -61,12 +59,11 @@ class FlaggedPairs:
         flagged = result.inconsistent
         if not flagged.any():
             return result
-        count = scans.ranges.shape[0]
         ids = np.asarray(ids, dtype=np.int64)
         candidates = candidate_pairs(scans.extents)
         # measured already: in the result, or earlier in this completion (with or without points)
-        measured = np.isin(candidates[:, 0] * count + candidates[:, 1],
-                           result.pairs[:, 0] * count + result.pairs[:, 1])
+        measured = np.isin(pair_keys(candidates[:, 0], candidates[:, 1]),
+                           pair_keys(result.pairs[:, 0], result.pairs[:, 1]))
         looked_up, added = [], []
         completed = result
         while True:
@@ -76,9 +73,11 @@ class FlaggedPairs:
                 break
             measured[rows] = True
             pairs = candidates[rows]
-            sums = self._look_up(scans, ids, pairs, result.parameters)
-            looked_up.append((pairs, sums))
-            evidence = sums[:, 1] > 0  # as the monitor keeps them: pairs without points say nothing
+            keys, poses = _keys_and_poses(scans, ids, pairs)
+            sums = self._look_up(scans, pairs, keys, poses, result.parameters)
+            looked_up.append((keys, poses, sums))
+            # as the monitor keeps them: pairs without points say nothing
+            evidence = sums[:, 1] > 0
             if not evidence.any():
                 break
             added.append((pairs[evidence], sums[evidence]))
@@ -87,17 +86,17 @@ class FlaggedPairs:
             if np.array_equal(grown, flagged):
                 break
             flagged = grown
-        self._keep(scans, ids, looked_up)
+        self._keep(looked_up)
         return completed
 
-    def _look_up(self, scans: ScanSet, ids: np.ndarray, pairs: np.ndarray,
+    def _look_up(self, scans: ScanSet, pairs: np.ndarray, keys: np.ndarray, poses: np.ndarray,
                  parameters: ConsistencyParameters) -> np.ndarray:
-        """(P, 4) M_ij, n_ij and their trimmed sums of `pairs` (rows): from the kept pairs
-        where both scans are where they were when measured, else measured now."""
+        """(P, 4) M_ij, n_ij and their trimmed sums of `pairs` (rows; `keys` and `poses` as
+        _keys_and_poses gives them): from the kept pairs where both scans are where they were
+        when measured, else measured now."""
         sums = np.empty((pairs.shape[0], 4))
         found = np.zeros(pairs.shape[0], dtype=bool)
         if self._keys.size:
-            keys, poses = _keys_and_poses(scans, ids, pairs)
             at = np.minimum(np.searchsorted(self._keys, keys), self._keys.size - 1)
             found = (self._keys[at] == keys) & np.all(self._poses[at] == poses, axis=1)
             sums[found] = self._sums[at[found]]
@@ -109,22 +108,21 @@ class FlaggedPairs:
                                          trimmed_sum, trimmed_count])
         return sums
 
-    def _keep(self, scans: ScanSet, ids: np.ndarray,
-              looked_up: list[tuple[np.ndarray, np.ndarray]]) -> None:
-        """The pairs of this completion become the kept ones (the last explanation's)."""
+    def _keep(self, looked_up: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        """The pairs of this completion (keys, poses, sums) become the kept ones (the last
+        explanation's)."""
         if not looked_up:
             return
-        pairs = np.concatenate([pairs for pairs, _ in looked_up])
-        sums = np.concatenate([sums for _, sums in looked_up])
-        keys, poses = _keys_and_poses(scans, ids, pairs)
+        keys, poses, sums = (np.concatenate(part) for part in zip(*looked_up))
         order = np.argsort(keys)
         self._keys, self._poses, self._sums = keys[order], poses[order], sums[order]
 
 
 def _keys_and_poses(scans: ScanSet, ids: np.ndarray,
                     pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each pair's key by keyframe ids and both scans' poses, (P,) and (P, 6)."""
-    keys = ids[pairs[:, 0]] * _ID_SHIFT + ids[pairs[:, 1]]
+    """Each pair's key by keyframe ids (pair_keys, as the monitor's pair cache keys slots)
+    and both scans' poses, (P,) and (P, 6)."""
+    keys = pair_keys(ids[pairs[:, 0]], ids[pairs[:, 1]])
     poses = np.concatenate([scans.sensor_poses[pairs[:, 0]],
                             scans.sensor_poses[pairs[:, 1]]], axis=1)
     return keys, poses
