@@ -407,8 +407,8 @@ def print_run(node_run: NodeRun, count: int) -> list[dict]:
     print(f'  still waiting in the node (behind)   {waiting} scans queued or buffered after '
           f'{node_run.waited:.0f} s')
     # A scan the node never registered was lost in its queue (lost scans), lost on the way
-    # (its pose has no scan), refused (an input problem: Intel's raw log publishes some scans
-    # twice microseconds apart, and the second duplicates a registered keyframe) or is still
+    # (its pose has no scan), refused (an input problem: Intel's raw log stamps some scans
+    # within stamp_tolerance of each other, and the later duplicates a registered one) or is still
     # waiting. A scan lost in the queue also leaves its pose without scan, so the sum may count
     # it twice: this checks that nothing goes unreported, not the exact split.
     reported = (int(status.get('lost scans', 0)) + waiting
