@@ -73,7 +73,9 @@ def _sweep(extents: np.ndarray, order: np.ndarray, place: bool, slots: np.ndarra
                     slots[low + 1] += 1
 
 
-@numba.njit(cache=True)
+# nogil: on a large map the sweep takes milliseconds, and the live second stage runs it on a
+# thread of its own while the first stage's updates need the interpreter
+@numba.njit(cache=True, nogil=True)
 def _sweep_pairs(extents: np.ndarray, order: np.ndarray) -> np.ndarray:
     """Overlapping pairs (i < j), rows sorted: counted, then placed by i, then sorted by j
     within each i (cheaper than a global sort of all pairs)."""
