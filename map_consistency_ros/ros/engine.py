@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TYPE_CHECKING
@@ -40,90 +38,6 @@ EXPLAINER_NICENESS = 19
 # it off the updates, whose kernels, split across the cores, wait for their slowest part
 # (docs/node.md, Threads).
 EXPLAINER_THREADS = 1
-
-
-# How long the second stage waits for an update to end before it runs anyway, and how long it
-# then runs before it yields again: a worker that never idles slows it to a fifth, never stops it.
-UPDATE_FIRST_WAIT = 0.020  # s
-RUN_AFTER_WAIT = 0.005  # s
-
-
-class UpdateFirst:
-    """The interpreter goes to a first-stage update before the second stage.
-
-    Niceness orders the threads on the cores, not on the interpreter lock, which both need for
-    their Python code: the compiled kernels release it while they run, and when an update's
-    kernel returns, the explainer may hold it, and the update then waits for the explainer's
-    Python code to release it (up to the interpreter's switch interval, 5 ms, at every return).
-    So while the worker applies records and publishes their update (`updating`), the explainer
-    (`yielding`) waits at each of its Python function calls and returns until the update is
-    done. The wait is bounded (UPDATE_FIRST_WAIT, then RUN_AFTER_WAIT of running), so neither
-    a worker that never idles nor a worker that waits for the second stage (~/check, the first
-    verdict) can stop the explainer.
-    """
-
-    def __init__(self, wait: float = UPDATE_FIRST_WAIT, run: float = RUN_AFTER_WAIT) -> None:
-        self._wait, self._run = wait, run
-        self._idle = threading.Event()  # set: no update in progress
-        self._idle.set()
-        self._free_until = 0.0  # time.monotonic until which the yielding thread runs on
-
-    @contextmanager
-    def updating(self) -> Iterator[None]:
-        """An update in progress (the worker thread).
-
-        Returns
-        -------
-        A context: the update is in progress within it.
-        """
-        self._idle.clear()
-        try:
-            yield
-        finally:
-            self._idle.set()
-
-    @contextmanager
-    def paused(self) -> Iterator[None]:
-        """The worker waits for the second stage or runs it itself (within `updating` or not).
-
-        Returns
-        -------
-        A context: the yielding thread runs freely within it; on leaving, an update that was in
-        progress is again.
-        """
-        updating = not self._idle.is_set()
-        self._idle.set()
-        try:
-            yield
-        finally:
-            if updating:
-                self._idle.clear()
-
-    @property
-    def updating_now(self) -> bool:
-        """Whether an update is in progress (and not paused)."""
-        return not self._idle.is_set()
-
-    @contextmanager
-    def yielding(self) -> Iterator[None]:
-        """The calling thread yields to updates (a profile hook of this thread only).
-
-        Returns
-        -------
-        A context: within it, the calling thread waits at each Python call and return while
-        an update is in progress (bounded, see the class).
-        """
-        sys.setprofile(self._yield)
-        try:
-            yield
-        finally:
-            sys.setprofile(None)
-
-    def _yield(self, frame, event, arg) -> None:  # noqa: ARG002 - sys.setprofile's signature
-        if self._idle.is_set() or time.monotonic() < self._free_until:
-            return
-        if not self._idle.wait(self._wait):
-            self._free_until = time.monotonic() + self._run
 
 
 class NotMonitoring(Exception):
@@ -183,7 +97,6 @@ class Engine:
         # the worker and the explainer both publish (reentrant: a reset takes a snapshot)
         self.lock = threading.RLock()
         self._explain_wake = threading.Event()
-        self._update_first = UpdateFirst()
         self._stop = threading.Event()
         self._ready = threading.Event()  # set once the worker has loaded the kernels
         self.start_failure = ''  # why loading the kernels failed: the worker never ran
@@ -343,11 +256,10 @@ class Engine:
         changed_at = None  # arrival of the oldest record that changed the map
         records = self._intake.take()
         taken = time.monotonic()
-        with self._update_first.updating():
-            for arrival, record in records:
-                summary, reset = self._apply(record)
-                if summary is not None or reset:
-                    changed_at = arrival if changed_at is None else min(changed_at, arrival)
+        for arrival, record in records:
+            summary, reset = self._apply(record)
+            if summary is not None or reset:
+                changed_at = arrival if changed_at is None else min(changed_at, arrival)
         applied_seconds = time.monotonic() - taken  # every record, changing the map or not
         while self._jobs:
             job, future = self._jobs.popleft()
@@ -359,17 +271,16 @@ class Engine:
             finally:
                 _run_kernels_on(self._settings.update_threads)
         self._outputs.greet_marker_subscribers()
-        with self._update_first.updating():
-            start = time.perf_counter()
-            self._take_snapshot()
-            if changed_at is not None:
-                self._outputs.timing = {'queued_s': max(taken - changed_at, 0.0),
-                                        'monitor_s': applied_seconds,
-                                        'snapshot_s': time.perf_counter() - start}
-                try:
-                    self._publish_verdict(changed_at)
-                except ExplanationFailed:
-                    pass  # no verdict yet: diagnostics say why, the explainer tries again
+        start = time.perf_counter()
+        self._take_snapshot()
+        if changed_at is not None:
+            self._outputs.timing = {'queued_s': max(taken - changed_at, 0.0),
+                                    'monitor_s': applied_seconds,
+                                    'snapshot_s': time.perf_counter() - start}
+            try:
+                self._publish_verdict(changed_at)
+            except ExplanationFailed:
+                pass  # no verdict yet: diagnostics say why, the explainer tries again
         if self._verdict_behind():
             self._explain_wake.set()
 
@@ -436,8 +347,7 @@ class Engine:
             with self.lock:
                 snapshot, serial = self.snapshot, self._serial
             try:
-                with self._update_first.yielding():
-                    verdict = self._explain(snapshot)
+                verdict = self._explain(snapshot)
                 with self.lock:
                     if serial > self._verdict_serial:  # not overtaken by ~/check or a reset
                         self.verdict, self._verdict_serial = verdict, serial
@@ -459,8 +369,7 @@ class Engine:
         if explain_now or self.verdict is None:
             serial = self._serial
             try:
-                with self._update_first.paused():  # the explainer may hold the pipeline's turn
-                    verdict = self._explain(snapshot)
+                verdict = self._explain(snapshot)
             except ExplanationFailed:
                 self._outputs.publish_diagnostics()  # no verdict to publish, or not the one asked
                 raise
