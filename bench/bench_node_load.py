@@ -315,6 +315,7 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
     updates = []  # (latency ms, keyframes, timing) of every update of every run
     explanations = []  # (keyframes judged, seconds) of every explanation of every run
     run_buckets = []  # per run: the median latency of each map-size bucket
+    run_medians = []  # per run: its median latency
     for number, node_run in enumerate(runs, 1):
         print(f'  run {number}' if repeat > 1 else '', end='\n' if repeat > 1 else '')
         reports = print_run(node_run, count)
@@ -324,13 +325,16 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         explanations += [(r['judged_keyframes'], r['timing']['explanation_s'])
                          for r in node_run.reports if 'explanation_s' in r['timing']]
         if latency.size:
+            run_medians.append(np.median(latency))
             run_buckets.append([np.median(latency[inside])
                                 for _, _, inside in map_size_buckets(sizes)])
     latency = np.array([ms for ms, _, _ in updates])
     if latency.size:
         print(f'  update latency (ms)                  median {np.median(latency):.1f}, '
               f'p99 {np.percentile(latency, 99):.1f}, max {latency.max():.1f} over '
-              f'{latency.size} updates (target: median < 10, p99 < 50)')
+              f'{latency.size} updates (target: median < 10, p99 < 50)'
+              + ('' if repeat == 1 else
+                 '; each run\'s median: ' + ', '.join(f'{ms:.1f}' for ms in run_medians)))
         sizes = np.array([size for _, size, _ in updates])
         timings = [timing for _, _, timing in updates]
         buckets = []
@@ -373,7 +377,10 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
               + (f' ({repeat} runs pooled)' if repeat > 1 else '') +
               f': median {np.median(alone):.1f} ms, p99 '
               f'{np.percentile(alone, 99):.1f} ms ({path_every} keyframes each, kernels on '
-              f'{threads or "every"} thread(s) as the node\'s updates); back to back, warm: '
+              f'{threads or "every"} thread(s) as the node\'s updates'
+              + ('' if repeat == 1 else '; each run\'s median: ' + ', '.join(
+                  f'{np.median(seconds) * 1e3:.1f}' for seconds, _ in paced))
+              + '); back to back, warm: '
               f'median {np.median(hot):.1f} ms, p99 {np.percentile(hot, 99):.1f} ms')
         print(f'  in-process (paced) last / first map-size bucket, median: '
               f'{alone_buckets[-1] / alone_buckets[0]:.2f}')
