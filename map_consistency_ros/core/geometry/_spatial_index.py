@@ -167,7 +167,10 @@ class ScanExtentIndex:
             raise ValueError(f'{len(ids)} ids but {len(extents)} extents')
         if len(np.unique(ids)) != len(ids):
             raise ValueError('ids must not repeat')
-        self.remove(ids[np.isin(ids, list(self._cells))])
+        # a lookup per id, not an array of every id in the index: this runs on every update
+        known = np.fromiter((scan_id in self._cells for scan_id in ids.tolist()), dtype=bool,
+                            count=ids.size)
+        self.remove(ids[known])
         for scan_id, box in zip(ids.tolist(), extents):
             row = self._row_of(scan_id)
             cells = self._cells_of(box)

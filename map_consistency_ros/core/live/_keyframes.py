@@ -41,17 +41,38 @@ def match_stamps(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
     -------
     (Q,) int64: the index into `stamps` of each query's match, -1 where none.
     """
-    found = np.full(queries.size, -1, dtype=np.int64)
     if stamps.size == 0 or queries.size == 0:
-        return found
+        return np.full(queries.size, -1, dtype=np.int64)
     order = np.argsort(stamps, kind='stable') if order is None else order
-    ordered = stamps[order]
+    found = match_sorted(queries, stamps[order], tolerance)
+    matched = found >= 0
+    found[matched] = order[found[matched]]
+    return found
+
+
+def match_sorted(queries: np.ndarray, ordered: np.ndarray, tolerance: float) -> np.ndarray:
+    """match_stamps on stamps already sorted: no pass over them, a binary search per query.
+
+    Parameters
+    ----------
+    queries: (Q,) seconds.
+    ordered: (S,) seconds, sorted.
+    tolerance: the largest |query - stamp| of a match, seconds.
+
+    Returns
+    -------
+    (Q,) int64: the index into `ordered` of each query's nearest stamp (the first of equally
+    near ones) when it is within `tolerance`, -1 where none.
+    """
+    found = np.full(queries.size, -1, dtype=np.int64)
+    if ordered.size == 0 or queries.size == 0:
+        return found
     right = np.clip(np.searchsorted(ordered, queries), 0, ordered.size - 1)
     left = np.clip(right - 1, 0, ordered.size - 1)
     nearer = np.where(np.abs(ordered[left] - queries) < np.abs(ordered[right] - queries),
                       left, right)
     close = np.abs(ordered[nearer] - queries) <= tolerance
-    found[close] = order[nearer[close]]
+    found[close] = nearer[close]
     return found
 
 
@@ -113,8 +134,10 @@ class Keyframes:
         self.poses = np.zeros((16, 3))
         self.incremental = np.zeros((16, 3))
         self.ranges = np.zeros((16, beams))
-        # slots in stamp order, kept: every scan and every trajectory is matched against them
+        # slots in stamp order and their stamps, kept: every scan and every trajectory is
+        # matched against them
         self._order = np.zeros(0, dtype=np.int64)
+        self._ordered_stamps = np.zeros(0)
         self.folded = np.zeros(0)  # stamps of the scans folded into their previous viewpoint
         self._added: list[float] = []  # every stamp added, keyframe or folded, in that order
 
@@ -152,6 +175,7 @@ class Keyframes:
             self._order = np.append(self._order, slot)  # the usual case: in stamp order
         else:
             self._order = np.argsort(self.stamps[:self.count], kind='stable')
+        self._ordered_stamps = self.stamps[self._order]
         return slot
 
     def fold(self, stamps: list[float]) -> None:
@@ -216,7 +240,10 @@ class Keyframes:
         (Q,) int64: the slot whose stamp is nearest to each query within the tolerance, -1
         where none.
         """
-        return match_stamps(queries, self.stamps[:self.count], self.tolerance, self._order)
+        found = match_sorted(queries, self._ordered_stamps, self.tolerance)
+        matched = found >= 0
+        found[matched] = self._order[found[matched]]
+        return found
 
     def holds(self, stamp: float) -> bool:
         """Whether a stamp is already known.
@@ -289,5 +316,4 @@ class Keyframes:
         return slots
 
     def _folded_match(self, stamps: np.ndarray) -> np.ndarray:
-        return match_stamps(stamps, self.folded, self.tolerance,
-                            np.arange(self.folded.size)) >= 0
+        return match_sorted(stamps, self.folded, self.tolerance) >= 0

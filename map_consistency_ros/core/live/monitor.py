@@ -38,8 +38,8 @@ from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameter
 from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, ScanSet,
                                                SensorModel, is_new_viewpoint, measure_pairs,
                                                read_only, se2)
-from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_stamps,
-                                                      rank_of_slot)
+from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_sorted,
+                                                      match_stamps, rank_of_slot)
 from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair_keys
 from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
 from map_consistency_ros.core.live._placement import Placement
@@ -183,6 +183,11 @@ class ConsistencyMonitor:
         # next test starts from it
         self._tested_on: tuple[PairCache, int, ConsistencyResult, np.ndarray] | None = None
         self._last = UpdateSummary()
+        # the stamps (sorted) of the last trajectory's poses without a scan, and whether a
+        # buffered scan matches one of them: kept by _apply_path and add_scan, because the node
+        # asks on every scan (`pending`) and a pass over the trajectory would grow with the run
+        self._unmatched_stamps = np.zeros(0)
+        self._pending = False
         self._unmatched = 0
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
 
@@ -247,7 +252,13 @@ class ConsistencyMonitor:
                 f'{self._model.max_range:g})')
         if self._keyframes.holds(stamp):
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
+        dropped = self._buffer.dropped
         self._buffer.add(stamp, ranges)
+        if self._buffer.dropped != dropped:  # a full buffer let a scan go: check what is held
+            self._pending = self._buffer_matches_unmatched()
+        elif not self._pending:
+            self._pending = bool(match_sorted(np.array([stamp]), self._unmatched_stamps,
+                                              self.settings.stamp_tolerance)[0] >= 0)
 
     def pose_problem(self, pose: np.ndarray) -> str:
         """Why a single pose is unusable.
@@ -270,7 +281,10 @@ class ConsistencyMonitor:
     @property
     def pending(self) -> bool:
         """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
-        unmatched = self._path_stamps[self._path_slots() == NO_SCAN]
+        return self._pending
+
+    def _buffer_matches_unmatched(self) -> bool:
+        unmatched = self._unmatched_stamps
         return bool(unmatched.size and np.isfinite(self._buffer.matches(unmatched)).any())
 
     def update_trajectory(self, stamps: np.ndarray, poses: np.ndarray) -> UpdateSummary:
@@ -436,10 +450,10 @@ class ConsistencyMonitor:
     def _loss(self) -> dict[str, int]:
         # Scans arrive in stamp order: a pose older than the newest scan and still without
         # one names a scan that was lost (or refused).
-        unmatched = self._path_stamps[self._path_slots() == NO_SCAN]
-        late = unmatched < self._buffer.newest - self.settings.stamp_tolerance
+        late = np.searchsorted(self._unmatched_stamps,
+                               self._buffer.newest - self.settings.stamp_tolerance)
         return dict(dropped_scans=self.dropped_scans,
-                    poses_without_scan=int(np.count_nonzero(late)),
+                    poses_without_scan=int(late),
                     folded_scans=self._folded_count())
 
     # -- bookkeeping -------------------------------------------------------------------------
@@ -481,7 +495,9 @@ class ConsistencyMonitor:
         path_slots = self._path_slots()
         moved = self._move_keyframes(path_slots)
         new = self._register(path_slots)
-        self._unmatched = int(np.count_nonzero(self._path_slots() == NO_SCAN))
+        self._unmatched_stamps = self._path_stamps[self._path_slots() == NO_SCAN]
+        self._unmatched = int(self._unmatched_stamps.size)
+        self._pending = self._buffer_matches_unmatched()
         changed = np.union1d(moved, new).astype(np.int64)
         measured = self._measure(changed, new) if changed.size else 0
         self._last = UpdateSummary(new_keyframes=int(new.size), moved_keyframes=int(moved.size),

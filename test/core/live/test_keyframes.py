@@ -3,8 +3,8 @@ import math
 
 import numpy as np
 
-from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_stamps,
-                                                      rank_of_slot)
+from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_sorted,
+                                                      match_stamps, rank_of_slot)
 from map_consistency_ros.core.live._scan_buffer import ScanBuffer
 
 
@@ -19,6 +19,45 @@ def test_stamps_match_the_nearest_within_the_tolerance():
     stamps = np.array([3.0, 1.0, 2.0])
     found = match_stamps(np.array([0.4, 1.2, 1.6, 2.5, 9.0]), stamps, 0.5)
     assert found.tolist() == [-1, 1, 2, 0, -1]  # 2.5: equally near 2 and 3, the later one
+
+
+def _nearest_by_brute_force(queries, stamps, tolerance):
+    """Index of the nearest stamp within the tolerance (the later of equally near stamps in
+    stamp order, the first of equal stamps), -1 where none: every query against every stamp."""
+    order = np.argsort(stamps, kind='stable')
+    found = []
+    for query in queries:
+        distance = np.abs(stamps[order] - query)
+        nearest = np.flatnonzero(distance == distance.min())
+        # of equally near stamps, the one right of the query (searchsorted's side)
+        right = [rank for rank in nearest if stamps[order[rank]] >= query]
+        rank = right[0] if right else nearest[-1]
+        found.append(int(order[rank]) if distance[rank] <= tolerance else -1)
+    return found
+
+
+def test_sorted_matching_and_the_kept_stamp_order_match_every_stamp_from_scratch():
+    generator = np.random.default_rng(11)
+    for trial in range(100):
+        # stamps on a grid of 0.25 s: ties in distance and equal stamps are frequent
+        stamps = generator.integers(0, 40, size=generator.integers(1, 30)) * 0.25
+        queries = generator.integers(-4, 44, size=25) * 0.125
+        tolerance = float(generator.choice([0.0, 0.125, 0.3]))
+        expected = _nearest_by_brute_force(queries, stamps, tolerance)
+        assert match_stamps(queries, stamps, tolerance).tolist() == expected
+        ordered = np.sort(stamps, kind='stable')
+        assert (match_sorted(queries, ordered, tolerance).tolist()
+                == _nearest_by_brute_force(queries, ordered, tolerance))
+        # the store keeps its stamps in order as keyframes arrive in any order
+        distinct = np.unique(stamps)
+        keyframes = _store(generator.permutation(distinct), tolerance)
+        slot_stamps = keyframes.stamps[:keyframes.count]
+        assert keyframes.match(queries).tolist() == _nearest_by_brute_force(
+            queries, slot_stamps, tolerance)
+        assert [keyframes.holds(query) for query in queries] == [
+            found >= 0 for found in _nearest_by_brute_force(queries, slot_stamps, tolerance)]
+    assert match_sorted(np.array([1.0]), np.zeros(0), 1.0).tolist() == [-1]
+    assert match_sorted(np.zeros(0), np.array([1.0]), 1.0).tolist() == []
 
 
 def test_out_of_order_keyframes_keep_the_stamp_order():

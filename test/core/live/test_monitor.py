@@ -10,6 +10,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   check_consistency, inconsistent_endpoints)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel, point_distances, se2
 from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
+from map_consistency_ros.core.live._keyframes import NO_SCAN
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 # Scans 270..349 of the Intel log: one revisit, and two stamps out of file order (294/295).
@@ -254,6 +255,57 @@ def test_pose_before_scan_registers_on_refresh(intel):
     snapshot = monitor.evaluate()
     np.testing.assert_allclose(snapshot.stamps, [stamps[0], stamps[2] + 2e-4])
     np.testing.assert_allclose(snapshot.incremental_poses, poses[[0, 2]])
+
+
+def _pending_from_scratch(monitor: ConsistencyMonitor) -> bool:
+    """Whether a buffered scan matches a pose of the last trajectory that has no scan,
+    computed from every pose of that trajectory."""
+    unmatched = monitor._path_stamps[monitor._path_slots() == NO_SCAN]
+    return bool(unmatched.size and np.isfinite(monitor._buffer.matches(unmatched)).any())
+
+
+def test_pending_follows_the_buffer_and_the_trajectory_from_scratch(intel):
+    """`pending` is kept as scans come and go; it must equal its definition at every step:
+    scans before and after their poses, out of order, lost, and pushed out of a full buffer."""
+    stamps, ranges, poses, model = _by_stamp(intel)
+    generator = np.random.default_rng(3)
+    seen = set()
+    for trial in range(4):
+        monitor = ConsistencyMonitor(settings=MonitorSettings(max_buffered_scans=4))
+        arrival = np.arange(len(stamps))
+        swaps = generator.choice(len(stamps) - 1, size=10, replace=False)
+        arrival[swaps], arrival[swaps + 1] = arrival[swaps + 1], arrival[swaps]
+        path_end = 0
+        for index in arrival:
+            if generator.random() < 0.1:
+                continue  # this scan is lost
+            monitor.add_scan(stamps[index], ranges[index], model)
+            assert monitor.pending == _pending_from_scratch(monitor)
+            seen.add(monitor.pending)
+            if monitor.pending and generator.random() < 0.5:
+                monitor.refresh()
+                assert monitor.pending == _pending_from_scratch(monitor) is False
+            if generator.random() < 0.3:  # the back-end runs ahead of the scans or behind
+                path_end = min(len(stamps), path_end + int(generator.integers(1, 8)))
+                monitor.update_trajectory(stamps[:path_end], poses[:path_end])
+                assert monitor.pending == _pending_from_scratch(monitor)
+    assert seen == {True, False}
+
+
+def test_a_pending_scan_pushed_out_of_the_buffer_is_no_longer_pending(intel):
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor(settings=MonitorSettings(max_buffered_scans=2))
+    monitor.add_scan(stamps[0], ranges[0], model)
+    monitor.update_trajectory(stamps[:2], poses[:2])  # pose 1 waits for its scan
+    monitor.add_scan(stamps[1], ranges[1], model)
+    assert monitor.pending
+    monitor.add_scan(stamps[5], ranges[5], model)  # the buffer holds 1 and 5: still pending
+    assert monitor.pending
+    monitor.add_scan(stamps[6], ranges[6], model)  # scan 1 is pushed out
+    assert not monitor.pending and monitor.dropped_scans == 1
+    assert monitor.refresh().new_keyframes == 0
+    # scan 1 never came as far as the monitor knows; later scans arrived: it is lost
+    assert monitor.evaluate().poses_without_scan == 1
 
 
 def test_a_trajectory_before_any_scan_waits_for_its_scans(intel):
