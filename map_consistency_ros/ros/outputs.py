@@ -18,7 +18,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float64, String
 from visualization_msgs.msg import MarkerArray
 
-from map_consistency_ros.core.verdict import assessment_report, plain, to_json
+from map_consistency_ros.core.verdict import assessment_report, joined_json, to_json
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
@@ -50,7 +50,8 @@ class Outputs:
         self.updates = 0  # verdicts published for changes of the map (since the start)
         self.timing: dict[str, float] = {}  # seconds per stage of the last update
         self.phi: float | None = None  # of the last retune
-        self._verdict_content: tuple[object, dict] = (None, {})  # (verdict, its report part)
+        # (verdict, its part of the report as JSON text, the keys of that part)
+        self._verdict_content: tuple[object, str, frozenset[str]] = (None, '{}', frozenset())
         self._marker_updates = MarkerUpdates()  # used under the engine's lock
         self._marker_subscribers = 0
         self._markers = node.create_publisher(MarkerArray, '~/markers', RELIABLE)
@@ -87,7 +88,7 @@ class Outputs:
         if changed_at is not None:
             self.latency = time.monotonic() - changed_at
             self.updates += 1
-        self._report.publish(String(data=to_json(self._report_dict())))
+        self._report.publish(String(data=self._report_text()))
         self.publish_diagnostics()
 
     def greet_marker_subscribers(self) -> None:
@@ -166,24 +167,29 @@ class Outputs:
             start_failure=engine.start_failure,
             explanation_failure=engine.explanation_failure)
 
-    def _report_dict(self) -> dict:
-        """The machine-readable report of ~/report (the one place it is built): the verdict's
-        report of the CLI, scans named by their stamps, and the node's own figures."""
+    def _report_text(self) -> str:
+        """The machine-readable report of ~/report (the one place it is built), strict JSON:
+        the verdict's report of the CLI, scans named by their stamps, then the node's own
+        figures. The verdict's part is kept as text (_verdict_report): its lists of scans
+        grow with the map, and every update publishes a report."""
         snapshot = self._engine.snapshot
-        content = dict(self._verdict_report())
-        content.update(plain(dict(update_latency_s=self.latency, updates=self.updates,
-                                  phi=self.phi,
-                                  timing=self.timing, lost_scans=self.health().lost_scans,
-                                  keyframes=snapshot.keyframe_count,
-                                  folded_keyframes=snapshot.folded_scans)))
+        figures = dict(update_latency_s=self.latency, updates=self.updates, phi=self.phi,
+                       timing=self.timing, lost_scans=self.health().lost_scans,
+                       keyframes=snapshot.keyframe_count,
+                       folded_keyframes=snapshot.folded_scans)
         bridge_counts = self._engine.pipeline.feed.bridge_counts
         if bridge_counts is not None:
-            content['slam_toolbox_bridge'] = plain(asdict(bridge_counts))
-        return content
+            figures['slam_toolbox_bridge'] = asdict(bridge_counts)
+        verdict_text, verdict_keys = self._verdict_report()
+        if not verdict_keys.isdisjoint(figures):  # strict JSON: one member per key
+            raise ValueError(f'~/report: the verdict and the node both name '
+                             f'{sorted(verdict_keys & set(figures))}')
+        return joined_json(verdict_text, to_json(figures))
 
-    def _verdict_report(self) -> dict:
-        """The part of the report that only a new verdict changes, built once per verdict
-        (every update publishes a report; a verdict comes at most every explanation_period)."""
+    def _verdict_report(self) -> tuple[str, frozenset[str]]:
+        """The part of the report that only a new verdict changes, as JSON text, and its keys:
+        built once per verdict (every update publishes a report; a verdict comes at most every
+        explanation_period)."""
         verdict = self._engine.verdict
         if self._verdict_content[0] is not verdict:
             assessment, judged = verdict.assessment, verdict.snapshot
@@ -195,5 +201,5 @@ class Outputs:
                                 judged_stamp=judged.estimate_stamp,
                                 inconsistent_stamps=judged.stamps[
                                     assessment.result.inconsistent]))
-            self._verdict_content = (verdict, plain(content))
-        return self._verdict_content[1]
+            self._verdict_content = (verdict, to_json(content), frozenset(content))
+        return self._verdict_content[1:]

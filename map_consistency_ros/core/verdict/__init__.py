@@ -18,8 +18,8 @@ from map_consistency_ros.core.verdict.explanation import (CHANGE, MINOR, MISALIG
                                                           longest_run, longest_travel,
                                                           misaligned_endpoints,
                                                           place_labels)
-from map_consistency_ros.core.verdict.reporting import (assessment_report, plain, result_report,
-                                                        scan_names, to_json)
+from map_consistency_ros.core.verdict.reporting import (assessment_report, joined_json, plain,
+                                                        result_report, scan_names, to_json)
 
 __all__ = [
     'RegistrationSettings', 'SurfacePoints', 'Registrations', 'surface_points',
@@ -27,7 +27,7 @@ __all__ = [
     'ExplanationSettings', 'Misalignment', 'ChangedPlace', 'Assessment', 'RegistrationCache',
     'explain', 'check_map', 'misaligned_endpoints',
     'PairClass', 'MISALIGNED', 'MINOR', 'CHANGE', 'UNREGISTERED', 'PAIR_CLASSES',
-    'scan_names', 'result_report', 'assessment_report', 'plain', 'to_json',
+    'scan_names', 'result_report', 'assessment_report', 'plain', 'to_json', 'joined_json',
     # units the verdict is built from, tested on their own
     'point_grid', 'nearest_point', 'symmetric_inverse', 'PointMoments',
     'agreeing_registrations', 'corrections_confirmed', 'longest_run', 'longest_travel',

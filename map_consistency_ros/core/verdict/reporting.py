@@ -143,3 +143,29 @@ def to_json(report, indent: int | None = None) -> str:
     parser but Python's would read the report).
     """
     return json.dumps(plain(report), indent=indent, allow_nan=False)
+
+
+def joined_json(first: str, second: str) -> str:
+    """Two JSON objects of `to_json` (one line) as one: the members of `first`, then those of
+    `second`; the same text as `to_json` of the merged dict when no key is in both.
+
+    A report whose large part changes rarely keeps that part's text and joins each update's
+    small part to it, instead of turning the whole report into JSON again.
+
+    Parameters
+    ----------
+    first, second: '{...}' texts of to_json (indent None), with no key in common.
+
+    Returns
+    -------
+    The text of one object. ValueError when one of them is not an object's text.
+    """
+    first, second = first.strip(), second.strip()
+    if not (first.startswith('{') and first.endswith('}') and second.startswith('{')
+            and second.endswith('}')):
+        raise ValueError('joined_json joins the texts of two JSON objects')
+    if first == '{}':
+        return second
+    if second == '{}':
+        return first
+    return f'{first[:-1]}, {second[1:]}'
