@@ -44,10 +44,7 @@ def match_stamps(queries: np.ndarray, stamps: np.ndarray, tolerance: float,
     if stamps.size == 0 or queries.size == 0:
         return np.full(queries.size, -1, dtype=np.int64)
     order = np.argsort(stamps, kind='stable') if order is None else order
-    found = match_sorted(queries, stamps[order], tolerance)
-    matched = found >= 0
-    found[matched] = order[found[matched]]
-    return found
+    return _unsorted(match_sorted(queries, stamps[order], tolerance), order)
 
 
 def match_sorted(queries: np.ndarray, ordered: np.ndarray, tolerance: float) -> np.ndarray:
@@ -73,6 +70,14 @@ def match_sorted(queries: np.ndarray, ordered: np.ndarray, tolerance: float) -> 
                       left, right)
     close = np.abs(ordered[nearer] - queries) <= tolerance
     found[close] = nearer[close]
+    return found
+
+
+def _unsorted(found: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Indices into sorted stamps (-1: none, kept) as indices into the stamps that `order`
+    sorts (in place)."""
+    matched = found >= 0
+    found[matched] = order[found[matched]]
     return found
 
 
@@ -240,10 +245,8 @@ class Keyframes:
         (Q,) int64: the slot whose stamp is nearest to each query within the tolerance, -1
         where none.
         """
-        found = match_sorted(queries, self._ordered_stamps, self.tolerance)
-        matched = found >= 0
-        found[matched] = self._order[found[matched]]
-        return found
+        return _unsorted(match_sorted(queries, self._ordered_stamps, self.tolerance),
+                         self._order)
 
     def holds(self, stamp: float) -> bool:
         """Whether a stamp is already known.

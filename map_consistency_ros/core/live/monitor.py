@@ -188,7 +188,6 @@ class ConsistencyMonitor:
         # asks on every scan (`pending`) and a pass over the trajectory would grow with the run
         self._unmatched_stamps = np.zeros(0)
         self._pending = False
-        self._unmatched = 0
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
 
     def _reset_pairs(self) -> None:
@@ -282,6 +281,11 @@ class ConsistencyMonitor:
     def pending(self) -> bool:
         """Whether buffered scans match poses of the last trajectory (call `refresh`)."""
         return self._pending
+
+    @property
+    def _unmatched(self) -> int:
+        """Poses of the last trajectory without a scan (yet)."""
+        return int(self._unmatched_stamps.size)
 
     def _buffer_matches_unmatched(self) -> bool:
         unmatched = self._unmatched_stamps
@@ -496,7 +500,6 @@ class ConsistencyMonitor:
         moved = self._move_keyframes(path_slots)
         new = self._register(path_slots)
         self._unmatched_stamps = self._path_stamps[self._path_slots() == NO_SCAN]
-        self._unmatched = int(self._unmatched_stamps.size)
         self._pending = self._buffer_matches_unmatched()
         changed = np.union1d(moved, new).astype(np.int64)
         measured = self._measure(changed, new) if changed.size else 0
