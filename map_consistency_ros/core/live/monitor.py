@@ -432,9 +432,7 @@ class ConsistencyMonitor:
             return MonitorSnapshot(ids=np.zeros(0, dtype=np.int64), stamps=np.zeros(0),
                                    poses=empty, incremental_poses=empty, ranges=np.zeros((0, 0)),
                                    model=self._model, laser_offset=self._offset.copy(),
-                                   result=None, buffered_scans=len(self._buffer),
-                                   unmatched_poses=self._unmatched, last_update=self._last,
-                                   **self._loss())
+                                   result=None, last_update=self._last, **self.counts())
         keyframes = self._keyframes
         order = keyframes.order()
         if keyframes.in_stamp_order():
@@ -448,16 +446,23 @@ class ConsistencyMonitor:
             poses=keyframes.poses[order], incremental_poses=keyframes.incremental[order],
             ranges=ranges, model=self._model,
             laser_offset=self._offset.copy(), result=self._test(),
-            buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
-            last_update=self._last, **self._loss())
+            last_update=self._last, **self.counts())
 
-    def _loss(self) -> dict[str, int]:
+    def counts(self) -> dict[str, int]:
+        """The snapshot's counts of scans and poses that are not keyframes: buffered,
+        dropped, folded, and poses still without a scan. A scan that changes no keyframe
+        changes only these; none of them passes over the map.
+
+        Returns
+        -------
+        MonitorSnapshot field name -> value.
+        """
         # Scans arrive in stamp order: a pose older than the newest scan and still without
         # one names a scan that was lost (or refused).
         late = np.searchsorted(self._unmatched_stamps,
                                self._buffer.newest - self.settings.stamp_tolerance)
-        return dict(dropped_scans=self.dropped_scans,
-                    poses_without_scan=int(late),
+        return dict(buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
+                    dropped_scans=self.dropped_scans, poses_without_scan=int(late),
                     folded_scans=self._folded_count())
 
     # -- bookkeeping -------------------------------------------------------------------------
