@@ -3,7 +3,8 @@
 The worker owns the pipeline (core/live/pipeline.py, the one bag replay runs): it loads the
 compiled kernels, then applies the records the intake queued (keyframe estimates coalesce into
 the newest, single poses are all kept), runs the jobs of services (~/check, ~/reset, a
-retune's graph), takes one snapshot per burst (the first stage) and publishes it with the newest
+retune's graph), takes one snapshot per burst that changed the map (the first stage; a burst
+that did not only brings the snapshot's counts up to date) and publishes it with the newest
 second-stage verdict. The explainer runs the second stage on the newest snapshot at most every
 `explanation_period`, so a long explanation never delays an update. Both publish under the
 engine's one lock; a verdict never replaces that of a newer snapshot (serials count them).
@@ -271,9 +272,14 @@ class Engine:
             finally:
                 _run_kernels_on(self._settings.update_threads)
         self._outputs.greet_marker_subscribers()
-        start = time.perf_counter()
-        self._take_snapshot()
-        if changed_at is not None:
+        if changed_at is None:
+            # no keyframe changed (scans waiting for their pose): a snapshot would copy every
+            # keyframe again, for each such scan; only the counts move
+            with self.lock:
+                self.snapshot = self.pipeline.recount(self.snapshot)
+        else:
+            start = time.perf_counter()
+            self._take_snapshot()
             self._outputs.timing = {'queued_s': max(taken - changed_at, 0.0),
                                     'monitor_s': applied_seconds,
                                     'snapshot_s': time.perf_counter() - start}

@@ -146,6 +146,24 @@ class LivePipeline:
         """
         return replace(self.monitor.evaluate(), estimate_stamp=self.feed.estimate_stamp)
 
+    def recount(self, snapshot: MonitorSnapshot) -> MonitorSnapshot:
+        """`snapshot`, taken since the map last changed, with the monitor's counts of now
+        (ConsistencyMonitor.counts): what `evaluate()` would return, without copying the
+        keyframes again. Records that changed no keyframe (most scans) change only these.
+
+        Parameters
+        ----------
+        snapshot: a snapshot of `evaluate()` on this pipeline's current map.
+
+        Returns
+        -------
+        The snapshot with its counts of buffered, dropped and folded scans and of poses
+        without a scan brought up to date.
+        """
+        if snapshot.keyframe_count == 0:  # nothing to copy; the first scan shapes the store
+            return self.evaluate()
+        return replace(snapshot, **self.monitor.counts())
+
     def explain(self, snapshot: MonitorSnapshot) -> LiveVerdict:
         """The second stage on `snapshot` (any thread; one explanation at a time).
 

@@ -102,6 +102,37 @@ def test_evaluate_is_the_monitors_snapshot_named_by_its_estimate(intel, streamed
     np.testing.assert_array_equal(snapshot.poses, intel[3])
 
 
+def test_a_recount_is_the_snapshot_of_a_map_no_scan_changed(intel):
+    """Scans waiting for their pose (one pushed out of the full buffer, poses without a scan
+    among them) change only the counts: the last snapshot recounted equals a new one."""
+    from dataclasses import fields
+    stamps, ranges, poses, _, model = intel
+    pipeline = LivePipeline(EVERY_KEYFRAME, MonitorSettings(max_partners=0, max_buffered_scans=6))
+    snapshot, unchanged = pipeline.evaluate(), 0
+    lost = {23, 24, 37}
+    for k, (stamp, scan) in enumerate(zip(stamps, ranges)):
+        if k not in lost:
+            applied = pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model))
+            if applied.summary is None:
+                unchanged += 1
+                recounted, fresh = pipeline.recount(snapshot), pipeline.evaluate()
+                for field in fields(fresh):
+                    value, expected = getattr(recounted, field.name), getattr(fresh, field.name)
+                    if isinstance(expected, np.ndarray):
+                        np.testing.assert_array_equal(value, expected)
+                    elif field.name == 'result':
+                        assert value is expected
+                    else:
+                        assert value == expected or (value != value and expected != expected)
+                snapshot = recounted
+        if k % 10 == 9:  # the estimate lags ten scans: the scans after it wait in the buffer
+            pipeline.apply(KeyframeEstimate(stamps=stamps[:k - 4], poses=poses[:k - 4]))
+            snapshot = pipeline.evaluate()
+    assert unchanged > 30
+    assert snapshot.dropped_scans > 0 and snapshot.poses_without_scan > 0
+    assert snapshot.buffered_scans > 0
+
+
 def test_a_reset_starts_a_new_session(intel):
     stamps, ranges, poses, _, model = intel
     pipeline = LivePipeline(EVERY_KEYFRAME, ALL_PAIRS)
