@@ -29,8 +29,12 @@ class PartnerBudget:
         self.max_partners = max_partners
         # per slot: whether its pairs with earlier slots were thinned to the budget on arrival
         self._budgeted = np.zeros(16, dtype=bool)
-        # pair keys kept by the budget of keyframes that exceeded it (sorted)
-        self._kept = np.zeros(0, dtype=np.int64)
+        # the partners a budgeted slot j keeps: _partners[_start[j]:_end[j]], sorted, appended
+        # when j arrives (a keyframe's arrival costs its own partners, not a copy of the map's)
+        self._start = np.zeros(16, dtype=np.int64)
+        self._end = np.zeros(16, dtype=np.int64)
+        self._partners = np.zeros(64, dtype=np.int64)
+        self._size = 0  # of _partners in use
 
     def select(self, pairs: np.ndarray, new: np.ndarray, slot_count: int,
                laser_poses: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
@@ -54,31 +58,47 @@ class PartnerBudget:
         (P', 2) the kept rows of `pairs`, in their order.
         """
         if slot_count > self._budgeted.size:
-            self._budgeted = with_rows(self._budgeted, max(slot_count, 2 * self._budgeted.size),
-                                       fill=False)
+            rows = max(slot_count, 2 * self._budgeted.size)
+            self._budgeted = with_rows(self._budgeted, rows, fill=False)
+            self._start, self._end = with_rows(self._start, rows), with_rows(self._end, rows)
         budget = self.max_partners
         if budget and new.size and pairs.size:
             later = pairs[:, 1]
             counts = np.bincount(later, minlength=slot_count)
-            crowded = new[counts[new] > budget]
+            # once and for all: a slot budgeted before keeps the partners it chose then
+            crowded = new[(counts[new] > budget) & ~self._budgeted[new]]
             if crowded.size:
                 self._budgeted[crowded] = True
-                self._kept = _sorted_insert(
-                    self._kept, _nearest_of_each_visit(pairs, crowded, budget, laser_poses))
+                self._keep(*_nearest_of_each_visit(pairs, crowded, budget, laser_poses))
         budgeted = self._budgeted[pairs[:, 1]]
         if not budgeted.any():
             return pairs
         keep = ~budgeted
-        keep[budgeted] = _sorted_contains(self._kept,
-                                          pair_keys(pairs[budgeted, 0], pairs[budgeted, 1]))
+        keep[budgeted] = _kept_by_slot(self._partners, self._start, self._end,
+                                       np.ascontiguousarray(pairs[budgeted, 0], dtype=np.int64),
+                                       np.ascontiguousarray(pairs[budgeted, 1], dtype=np.int64))
         return pairs[keep]
+
+    def _keep(self, partner: np.ndarray, slot: np.ndarray) -> None:
+        """Append the partners that slots budgeted now keep (rows ordered by slot, then
+        partner; no slot had partners kept before)."""
+        slots, counts = np.unique(slot, return_counts=True)
+        size = self._size + partner.size
+        if size > self._partners.size:
+            self._partners = with_rows(self._partners, max(size, 2 * self._partners.size))
+        self._partners[self._size:size] = partner
+        ends = self._size + np.cumsum(counts)
+        self._start[slots], self._end[slots] = ends - counts, ends
+        self._size = size
 
 
 def _nearest_of_each_visit(pairs: np.ndarray, slots: np.ndarray, budget: int,
-                           laser_poses: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """Pair keys of each of `slots` with the nearest of its earlier partners in `pairs` in
-    each visit: runs of partners at most _VISIT_GAP slots apart (one pass through the place)
-    share the budget evenly, at least one pair each (ties in distance: the earlier partner).
+                           laser_poses: Callable[[np.ndarray], np.ndarray]
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """(partner, slot) of each of `slots` with the nearest of its earlier partners in `pairs`
+    in each visit, ordered by slot, then partner: runs of partners at most _VISIT_GAP slots
+    apart (one pass through the place) share the budget evenly, at least one pair each (ties
+    in distance: the earlier partner).
 
     All the slots at once, compiled: a burst of keyframes in a place visited often is when the
     budget bites, and a pass of numpy calls per slot cost as much as measuring the kept pairs.
@@ -89,7 +109,20 @@ def _nearest_of_each_visit(pairs: np.ndarray, slots: np.ndarray, budget: int,
     there = laser_poses(slots)[np.searchsorted(slots, slot)]
     distance = np.hypot(*(here[:, :2] - there[:, :2]).T)
     chosen = _nearest_in_visits(partner, slot, distance, budget, _VISIT_GAP)
-    return pair_keys(partner[chosen], slot[chosen])
+    return partner[chosen], slot[chosen]
+
+
+@numba.njit(cache=True)
+def _kept_by_slot(partners: np.ndarray, start: np.ndarray, end: np.ndarray, first: np.ndarray,
+                  second: np.ndarray) -> np.ndarray:
+    """Whether each pair (first, second) is one that slot `second` kept: `first` among
+    partners[start[second]:end[second]] (sorted; a binary search)."""
+    found = np.zeros(first.size, dtype=np.bool_)
+    for row in range(first.size):
+        low, high = start[second[row]], end[second[row]]
+        where = low + np.searchsorted(partners[low:high], first[row])
+        found[row] = where < high and partners[where] == first[row]
+    return found
 
 
 @numba.njit(cache=True)
@@ -158,20 +191,3 @@ def local_pair_keys(order: np.ndarray, new_ranks: np.ndarray, reach: int
     first = second - np.tile(np.arange(1, reach + 1), ranks.size)
     inside = first >= 0
     return np.unique(pair_keys(order[first[inside]], order[second[inside]])), bool(appended)
-
-
-def _sorted_insert(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """`sorted_keys` with the `keys` it lacks, sorted: a merge, so that a keyframe's
-    arrival costs its own keys and a copy, not a sort of every key of the map."""
-    keys = np.unique(keys)
-    keys = keys[~_sorted_contains(sorted_keys, keys)]
-    return np.insert(sorted_keys, np.searchsorted(sorted_keys, keys), keys)
-
-
-def _sorted_contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Whether each of `keys` is in `sorted_keys` (binary search: no pass over the map)."""
-    where = np.searchsorted(sorted_keys, keys)
-    inside = where < sorted_keys.size
-    found = np.zeros(keys.shape, dtype=bool)
-    found[inside] = sorted_keys[where[inside]] == keys[inside]
-    return found

@@ -38,6 +38,56 @@ def test_keyframes_crowded_in_one_update_keep_what_each_would_alone():
     assert len(together) < len(pairs)  # the budget bit
 
 
+def _nearest_of_each_visit_oracle(partners, slot, budget, poses, gap=5):
+    """The partners `slot` keeps, one by one: runs at most `gap` apart share the budget."""
+    partners = sorted(partners)
+    visits, run = [], [partners[0]]
+    for partner in partners[1:]:
+        if partner - run[-1] > gap:
+            visits.append(run)
+            run = []
+        run.append(partner)
+    visits.append(run)
+    quota = max(budget // len(visits), 1)
+    kept = set()
+    for run in visits:
+        distance = [float(np.hypot(*(poses[p, :2] - poses[slot, :2]))) for p in run]
+        kept |= {run[i] for i in sorted(range(len(run)), key=lambda i: distance[i])[:quota]}
+    return kept
+
+
+def test_a_long_stream_keeps_what_each_keyframe_chose_on_arrival():
+    rng = np.random.default_rng(11)
+    poses = rng.uniform(-20, 20, (400, 3))
+    laser = lambda slots: poses[np.asarray(slots)]  # noqa: E731
+    budget, expected, every_pair = PartnerBudget(max_partners=5), set(), set()
+    slot = 10
+    while slot < 400:  # one to three keyframes per update, each revisiting random places
+        new = np.arange(slot, min(slot + int(rng.integers(1, 4)), 400))
+        pairs = {(partner, int(j)) for j in new for start in rng.choice(int(j) - 8, 2)
+                 for partner in range(start, min(start + int(rng.integers(1, 12)), int(j)))}
+        pairs = np.array(sorted(pairs))
+        kept = budget.select(pairs, new, int(new[-1]) + 1, laser)
+        for j in new.tolist():
+            partners = pairs[pairs[:, 1] == j, 0].tolist()
+            chosen = (set(partners) if len(partners) <= 5
+                      else _nearest_of_each_visit_oracle(partners, j, 5, poses))
+            expected |= {(partner, j) for partner in chosen}
+        assert set(map(tuple, kept.tolist())) == expected & set(map(tuple, pairs.tolist()))
+        every_pair |= set(map(tuple, pairs.tolist()))
+        slot = int(new[-1]) + 1
+    # every keyframe moved: the pairs each chose on arrival, nothing else, in their order
+    pairs = np.array(sorted(every_pair))
+    kept = budget.select(pairs, np.zeros(0, dtype=np.int64), 400, lambda slots: None)
+    assert list(map(tuple, kept.tolist())) == sorted(expected)
+    assert len(expected) < len(every_pair)  # the budget bit
+    # once and for all: a budgeted slot named new again keeps its first choice
+    crowded = int(pairs[-1, 1])
+    again = np.array([[partner, crowded] for partner in range(crowded)])
+    assert set(map(tuple, budget.select(again, np.array([crowded]), 400, laser).tolist())) == {
+        pair for pair in expected if pair[1] == crowded}
+
+
 def test_keyframes_within_the_budget_and_no_budget_keep_every_pair():
     pairs = np.array([[0, 3], [1, 3], [2, 3]])
     np.testing.assert_array_equal(
