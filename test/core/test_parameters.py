@@ -35,8 +35,8 @@ def test_every_field_that_is_a_parameter_is_documented():
 
 
 def test_integers_stand_for_floats_and_nothing_else_passes():
-    made = settings_from_values(MonitorSettings, {'cell_size': 8, 'max_buffered_scans': 10})
-    assert made.cell_size == 8.0 and isinstance(made.cell_size, float)
+    made = settings_from_values(MonitorSettings, {'move_tolerance': 1, 'max_buffered_scans': 10})
+    assert made.move_tolerance == 1.0 and isinstance(made.move_tolerance, float)
     with pytest.raises(ValueError, match="alpha: expected a float, got a string '0.01'"):
         settings_from_values(ConsistencyParameters, {'alpha': '0.01'})
     with pytest.raises(ValueError, match='min_points: expected an integer, got a float 2.5'):
@@ -44,7 +44,7 @@ def test_integers_stand_for_floats_and_nothing_else_passes():
     with pytest.raises(ValueError, match='expected a float, got a bool'):
         settings_from_values(ConsistencyParameters, {'alpha': True})
     with pytest.raises(ValueError, match='must be finite'):
-        settings_from_values(MonitorSettings, {'cell_size': math.inf})
+        settings_from_values(MonitorSettings, {'move_tolerance': math.inf})
 
 
 def test_ranges_choices_and_lists():
@@ -80,8 +80,8 @@ def test_direct_construction_is_checked_against_the_declared_bounds():
     """The constructor and dataclasses.replace check as settings_from_values does."""
     with pytest.raises(ValueError, match=r'alpha: 0.7 is outside \[1e-300, 0.5\]'):
         ConsistencyParameters(alpha=0.7)
-    with pytest.raises(ValueError, match=r'cell_size: 0.0 is outside \[0.1, 1000\]'):
-        replace(MonitorSettings(), cell_size=0.0)
+    with pytest.raises(ValueError, match=r'move_tolerance: 11.0 is outside \[0, 10\]'):
+        replace(MonitorSettings(), move_tolerance=11.0)
     with pytest.raises(ValueError, match=r'keyframe_distance: -1.0 is outside'):
         FeedSettings(keyframe_distance=-1.0)
     with pytest.raises(ValueError, match=r'grid_steps: 2 is outside \[3, 10000\]'):
@@ -122,10 +122,10 @@ def test_choices_are_enums_that_read_as_their_strings():
 
 
 def test_configuration_from_values():
-    config = Configuration.from_values({'alpha': 0.02, 'cell_size': 4, 'pose_source': 'pose',
+    config = Configuration.from_values({'alpha': 0.02, 'move_tolerance': 4, 'pose_source': 'pose',
                                         'executor': 'multi_threaded', 'grid_steps': 7,
                                         'not_a_parameter': object()})
-    assert config.consistency.alpha == 0.02 and config.monitor.cell_size == 4.0
+    assert config.consistency.alpha == 0.02 and config.monitor.move_tolerance == 4.0
     assert config.feed.pose_source is PoseSource.POSE
     assert config.node.executor is ExecutorKind.MULTI_THREADED
     assert config.tuning.grid_steps == 7

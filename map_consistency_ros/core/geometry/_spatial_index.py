@@ -5,9 +5,6 @@ them out loses nothing. Boxes that merely touch count as overlapping (closed int
 """
 from __future__ import annotations
 
-import math
-from collections import defaultdict
-
 import numba
 import numpy as np
 
@@ -107,47 +104,48 @@ def candidate_pairs(extents: np.ndarray) -> np.ndarray:
     return _sweep_pairs(extents, np.argsort(extents[:, 0], kind='stable'))
 
 
-class ScanExtentIndex:
-    """Uniform-grid hash of scan extents for incremental candidate pairs (the live node).
+# Above this many box tests (queried scans x scans held: a loop closure moving a large part of
+# a large map), a query sweeps every box once instead (sort by xmin, O(N log N + pairs)); below
+# it, testing the queried boxes against every box held costs about a millisecond at most.
+_BOX_TESTS = 2_000_000
 
-    Each scan is stored in every grid cell its box touches; `pairs_touching` finds the
-    overlapping pairs of a few moved scans without visiting the others. `cell_size` (metres)
-    should be about the size of a scan's extent. Scans are kept by row (one per id, for good)
-    so that the boxes of all neighbours are tested at once.
+
+class ScanExtentIndex:
+    """Scan extents by id, for the overlapping pairs of a few moved scans (the live monitor).
+
+    Boxes are kept by row (one per id, for good). A query tests the queried scans' boxes
+    against every box held, compiled: a few scans against a map of thousands cost
+    microseconds, whatever the number of visits of their place; a query of many scans in a
+    large map sweeps every box once (_BOX_TESTS).
     """
 
-    def __init__(self, cell_size: float) -> None:
-        cell_size = float(cell_size)
-        if not math.isfinite(cell_size) or cell_size <= 0.0:
-            raise ValueError(f'cell_size must be a positive finite number, got {cell_size}')
-        self.cell_size = cell_size
+    def __init__(self) -> None:
         self._row: dict[int, int] = {}
         self._ids = np.zeros(16, dtype=np.int64)  # id of each row
         self._boxes = np.zeros((16, 4))  # box of each row
-        self._cells: dict[int, list[tuple[int, int]]] = {}  # of the ids in the index
-        self._grid: defaultdict[tuple[int, int], set[int]] = defaultdict(set)  # rows
+        self._held = np.zeros(16, dtype=bool)  # whether each row's id is in the index
+        self._count = 0  # ids in the index
 
     def __len__(self) -> int:
-        return len(self._cells)
+        return self._count
 
     def __contains__(self, scan_id: int) -> bool:
-        return int(scan_id) in self._cells
+        row = self._row.get(int(scan_id))
+        return row is not None and bool(self._held[row])
 
-    def _check_known(self, ids: list[int]) -> None:
-        unknown = [scan_id for scan_id in ids if scan_id not in self._cells]
-        if unknown:
-            raise KeyError(f'scan {unknown[0]} is not in the index')
-
-    def _cells_of(self, box: np.ndarray) -> list[tuple[int, int]]:
-        low = np.floor(box[:2] / self.cell_size).astype(np.int64)
-        high = np.floor(box[2:] / self.cell_size).astype(np.int64)
-        return [(cx, cy) for cx in range(low[0], high[0] + 1)
-                for cy in range(low[1], high[1] + 1)]
+    def _rows_of_known(self, ids: list[int]) -> np.ndarray:
+        rows = np.array([self._row.get(scan_id, -1) for scan_id in ids], dtype=np.int64)
+        unknown = (rows < 0) | ~self._held[rows]
+        if unknown.any():
+            raise KeyError(f'scan {ids[int(np.argmax(unknown))]} is not in the index')
+        return rows
 
     def _row_of(self, scan_id: int) -> int:
         row = self._row.setdefault(scan_id, len(self._row))
         if row == len(self._ids):
-            self._ids, self._boxes = with_rows(self._ids, 2 * row), with_rows(self._boxes, 2 * row)
+            rows = 2 * row
+            self._ids, self._boxes = with_rows(self._ids, rows), with_rows(self._boxes, rows)
+            self._held = with_rows(self._held, rows, fill=False)
         self._ids[row] = scan_id
         return row
 
@@ -167,17 +165,10 @@ class ScanExtentIndex:
             raise ValueError(f'{len(ids)} ids but {len(extents)} extents')
         if len(np.unique(ids)) != len(ids):
             raise ValueError('ids must not repeat')
-        # a lookup per id, not an array of every id in the index: this runs on every update
-        known = np.fromiter((scan_id in self._cells for scan_id in ids.tolist()), dtype=bool,
-                            count=ids.size)
-        self.remove(ids[known])
-        for scan_id, box in zip(ids.tolist(), extents):
-            row = self._row_of(scan_id)
-            cells = self._cells_of(box)
-            for cell in cells:
-                self._grid[cell].add(row)
-            self._boxes[row] = box
-            self._cells[scan_id] = cells
+        rows = np.array([self._row_of(scan_id) for scan_id in ids.tolist()], dtype=np.int64)
+        self._count += int(np.count_nonzero(~self._held[rows]))
+        self._boxes[rows] = extents
+        self._held[rows] = True
 
     def remove(self, ids: np.ndarray) -> None:
         """Forget scans.
@@ -187,15 +178,9 @@ class ScanExtentIndex:
         ids: the scan ids to forget; raises KeyError (and forgets none) if one is not in the
             index.
         """
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
-        self._check_known(ids)
-        for scan_id in ids:
-            row = self._row[scan_id]
-            for cell in self._cells.pop(scan_id):
-                members = self._grid[cell]
-                members.discard(row)
-                if not members:
-                    del self._grid[cell]
+        rows = self._rows_of_known(np.asarray(ids, dtype=np.int64).reshape(-1).tolist())
+        self._count -= int(np.count_nonzero(self._held[np.unique(rows)]))
+        self._held[rows] = False
 
     def pairs_touching(self, ids: np.ndarray) -> np.ndarray:
         """Every overlapping pair that involves one of `ids`.
@@ -208,19 +193,18 @@ class ScanExtentIndex:
         -------
         (P, 2) int64 rows (i, j) of scan ids, i < j, unique and sorted.
         """
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1).tolist()
-        self._check_known(ids)
-        # One union over the cells of all `ids` (a burst of keyframes, a loop closure's moved
-        # scans mostly share cells), then every box of it against each of theirs, compiled:
-        # boxes that overlap share a cell, so no pair is lost, and the cost follows the scans
-        # near `ids`, not a Python set operation per id and neighbour.
-        cells = set().union(*(self._cells[scan_id] for scan_id in ids))
-        near = set().union(*(self._grid[cell] for cell in cells))
-        if not ids or not near:
+        rows = self._rows_of_known(np.asarray(ids, dtype=np.int64).reshape(-1).tolist())
+        if rows.size == 0:
             return np.zeros((0, 2), dtype=np.int64)
-        rows = np.array([self._row[scan_id] for scan_id in ids], dtype=np.int64)
-        first, second = _overlapping(self._boxes, rows,
-                                     np.fromiter(near, dtype=np.int64, count=len(near)))
+        held = np.flatnonzero(self._held)
+        if rows.size * held.size <= _BOX_TESTS:
+            first, second = _overlapping(self._boxes, rows, held)
+        else:
+            boxes = self._boxes[held]
+            pairs = held[_sweep_pairs(boxes, np.argsort(boxes[:, 0], kind='stable'))]
+            queried = np.zeros(self._held.size, dtype=bool)
+            queried[rows] = True
+            first, second = pairs[queried[pairs].any(axis=1)].T
         return _as_pairs(self._ids[first], self._ids[second])
 
 
@@ -235,7 +219,7 @@ def _overlap(boxes: np.ndarray, row: int, other: int) -> bool:
 def _overlapping(boxes: np.ndarray, rows: np.ndarray, near: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """(row, other) for each of `rows` and each other row of `near` whose boxes overlap:
-    counted, then filled (a loop closure moves thousands of rows; no rows x near matrix)."""
+    counted, then filled (no rows x near matrix)."""
     count = 0
     for row in rows:
         for other in near:

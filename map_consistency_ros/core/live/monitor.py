@@ -66,9 +66,6 @@ class MonitorSettings(Settings):
         0.01, 'a keyframe moving further is measured again', 'm', (0.0, 10.0))
     move_angle_tolerance: float = parameter(
         0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
-    cell_size: float = parameter(
-        8.0, 'cell of the spatial index of scan extents, about a scan\'s extent', 'm',
-        (0.1, 1000.0))
     max_pose_extent: float = parameter(
         1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
         (1.0, 1e9))
@@ -192,7 +189,7 @@ class ConsistencyMonitor:
 
     def _reset_pairs(self) -> None:
         """Empty pair caches, index, placements and partner budget (nothing measured yet)."""
-        self._index = ScanExtentIndex(self.settings.cell_size)
+        self._index = ScanExtentIndex()
         trim = self.parameters.trim_largest
         self._current = PairCache(self._keep, trim)  # map pairs at the current poses
         self._local = PairCache(self._keep, trim)  # local-window pairs at incremental poses

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.geometry import ScanExtentIndex, ScanSet, candidate_pairs
+from map_consistency_ros.core.geometry import _spatial_index
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
 
@@ -39,9 +40,12 @@ def test_candidate_pairs_of_intel_scans(shared_data):
     pairs = candidate_pairs(scans.extents)
     np.testing.assert_array_equal(pairs, _brute_force(scans.extents))
     assert 80_000 < len(pairs) < 110_000
-    index = ScanExtentIndex(cell_size=10.0)
+    index = ScanExtentIndex()
     index.update(np.arange(scans.scan_count), scans.extents)
     np.testing.assert_array_equal(index.pairs_touching(np.arange(scans.scan_count)), pairs)
+    some = np.arange(0, scans.scan_count, 7)
+    np.testing.assert_array_equal(index.pairs_touching(some),
+                                  pairs[np.isin(pairs, some).any(axis=1)])
 
 
 def test_candidate_pairs_small_inputs():
@@ -61,11 +65,13 @@ def test_candidate_pairs_rejects_bad_extents(extents, message):
         candidate_pairs(extents)
 
 
-@pytest.mark.parametrize('seed, cell_size', [(0, 3.0), (1, 10.0), (2, 40.0)])
-def test_index_follows_updates_moves_and_removals(seed, cell_size):
+@pytest.mark.parametrize('seed, box_tests', [(0, None), (1, None), (2, 0), (3, 0)])
+def test_index_follows_updates_moves_and_removals(seed, box_tests, monkeypatch):
+    if box_tests is not None:  # every query sweeps every box (a large loop closure)
+        monkeypatch.setattr(_spatial_index, '_BOX_TESTS', box_tests)
     rng = np.random.default_rng(seed)
     boxes = _random_boxes(rng, 200)
-    index = ScanExtentIndex(cell_size)
+    index = ScanExtentIndex()
     present = np.zeros(len(boxes), bool)
     for step in range(30):
         if step % 3 == 2 and present.any():
@@ -88,7 +94,7 @@ def test_index_refreshes_only_pairs_of_moved_scans():
     """Pairs untouched by a move plus pairs_touching(moved) rebuild the full candidate set."""
     rng = np.random.default_rng(9)
     boxes = _random_boxes(rng, 300)
-    index = ScanExtentIndex(8.0)
+    index = ScanExtentIndex()
     index.update(np.arange(300), boxes)
     before = candidate_pairs(boxes)
     moved = rng.choice(300, 40, replace=False)
@@ -100,10 +106,7 @@ def test_index_refreshes_only_pairs_of_moved_scans():
 
 
 def test_index_rejects_bad_input():
-    for size in (0.0, -1.0, float('nan'), float('inf')):
-        with pytest.raises(ValueError, match='cell_size'):
-            ScanExtentIndex(size)
-    index = ScanExtentIndex(5.0)
+    index = ScanExtentIndex()
     index.update([3], [[0.0, 0, 1, 1]])
     assert index.pairs_touching([]).shape == (0, 2)
     with pytest.raises(ValueError, match='2 ids but 1 extents'):
@@ -120,7 +123,7 @@ def test_index_rejects_bad_input():
 
 
 def test_index_pairs_boxes_that_only_touch_and_none_of_a_scan_alone():
-    index = ScanExtentIndex(1.0)
+    index = ScanExtentIndex()
     # 1 touches 0 at an edge, 2 touches 1 at a corner only, 3 is far away
     boxes = np.array([[0.0, 0.0, 1.0, 1.0], [1.0, 0.5, 2.0, 1.5], [2.0, 1.5, 3.0, 2.5],
                       [10.0, 10.0, 11.0, 11.0]])

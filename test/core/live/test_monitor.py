@@ -498,7 +498,7 @@ def test_inconsistent_endpoints_are_the_points_inside_the_other_scan(intel):
 
 def test_settings_are_validated():
     for bad in [dict(laser_offset=(0.0, 0.0)), dict(laser_offset=(0.0, np.nan, 0.0)),
-                dict(max_buffered_scans=0), dict(stamp_tolerance=-1.0), dict(cell_size=0.0),
+                dict(max_buffered_scans=0), dict(stamp_tolerance=-1.0),
                 dict(move_tolerance=np.inf), dict(max_partners=-1)]:
         with pytest.raises(ValueError):
             MonitorSettings(**bad)
