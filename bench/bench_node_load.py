@@ -16,8 +16,8 @@ of /diagnostics), its peak RSS and the time SIGINT takes to end it. Then the upd
 (arrival of the Path -> verdict published, from ~/report) as median / p99 overall and per
 map-size bucket with the time per stage (monitor update, snapshot, markers, publishing),
 beside the same Path updates through the feed in-process, its scans applied at the stream's
-rate (the reference), and back to back. With `--repeat N`, N fresh nodes (and N paced
-references) get the stream and their updates are pooled; the last / first bucket ratio of each
+rate (the reference, run right after each node run), and back to back. With `--repeat N`, N
+fresh nodes (each followed by its paced reference) get the stream and their updates are pooled; the last / first bucket ratio of each
 run is printed beside the pooled one. Targets: at 400 scans/s every scan a keyframe or the loss
 reported; median < 10 ms and p99 < 50 ms at 100 scans/s (issue 12); node / in-process median
 and last / first bucket median each <= 1.5 (issue 28).
@@ -304,8 +304,18 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
                              log.ranges[order])
     scans = [serialize_message(messages.scan_message(message_class, stamps[k], ranges[k], model))
              for k in range(count)]
-    runs = [stream_to_node(stamps, poses, scans, rate, path_every, executor, parameters)
-            for _ in range(repeat)]
+    if reference:
+        from map_consistency_ros.core.configuration import NodeSettings
+        threads = next((int(value.split(':=')[1]) for value in parameters
+                        if value.startswith('update_threads:=')), NodeSettings().update_threads)
+    # each node run, then its paced reference: this machine's speed drifts over minutes, and
+    # a ratio of figures taken minutes apart would measure the drift
+    runs, paced = [], []
+    for _ in range(repeat):
+        runs.append(stream_to_node(stamps, poses, scans, rate, path_every, executor,
+                                   parameters))
+        if reference:
+            paced.append(in_process(stamps, ranges, poses, model, path_every, threads, rate))
 
     sampling = f'keyframes every {spacing:g} m' if spacing > 0.0 else 'every scan a keyframe'
     print(f'\n{name} ({sampling}): {count} scans at {rate:g} scans/s, a Path every '
@@ -324,8 +334,8 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         updates += [(ms, r['keyframes'], r['timing']) for ms, r in zip(latency, reports)]
         explanations += [(r['judged_keyframes'], r['timing']['explanation_s'])
                          for r in node_run.reports if 'explanation_s' in r['timing']]
+        run_medians.append(np.median(latency) if latency.size else np.nan)  # nan: no update
         if latency.size:
-            run_medians.append(np.median(latency))
             run_buckets.append([np.median(latency[inside])
                                 for _, _, inside in map_size_buckets(sizes)])
     latency = np.array([ms for ms, _, _ in updates])
@@ -362,11 +372,6 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
             print(f'  last / second bucket {buckets[-1] / buckets[1]:.2f}, largest / smallest '
                   f'of the buckets after the first {max(buckets[1:]) / min(buckets[1:]):.2f}')
     if reference:
-        from map_consistency_ros.core.configuration import NodeSettings
-        threads = next((int(value.split(':=')[1]) for value in parameters
-                        if value.startswith('update_threads:=')), NodeSettings().update_threads)
-        paced = [in_process(stamps, ranges, poses, model, path_every, threads, rate)
-                 for _ in range(repeat)]
         alone = np.concatenate([seconds for seconds, _ in paced]) * 1e3
         alone_sizes = np.concatenate([sizes for _, sizes in paced])
         hot = in_process(stamps, ranges, poses, model, path_every, threads)[0] * 1e3
@@ -385,9 +390,12 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         print(f'  in-process (paced) last / first map-size bucket, median: '
               f'{alone_buckets[-1] / alone_buckets[0]:.2f}')
         if latency.size:
+            pairs = ('' if repeat == 1 else ' (each run / its reference: ' + ', '.join(
+                f'{node_median / (np.median(seconds) * 1e3):.2f}'
+                for node_median, (seconds, _) in zip(run_medians, paced)) + ')')
             print(f'  node / in-process median latency: '
-                  f'{np.median(latency) / np.median(alone):.2f} (target <= 1.5); node / back to '
-                  f'back {np.median(latency) / np.median(hot):.2f}')
+                  f'{np.median(latency) / np.median(alone):.2f}{pairs} (target <= 1.5); node / '
+                  f'back to back {np.median(latency) / np.median(hot):.2f}')
 
 
 def print_run(node_run: NodeRun, count: int) -> list[dict]:
