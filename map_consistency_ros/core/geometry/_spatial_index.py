@@ -114,8 +114,8 @@ class ScanExtentIndex:
     """Scan extents by id, for the overlapping pairs of a few moved scans (the live monitor).
 
     Boxes are kept by row (one per id, for good). A query tests the queried scans' boxes
-    against every box held, compiled: a few scans against a map of thousands cost
-    microseconds, whatever the number of visits of their place; a query of many scans in a
+    against every box held, compiled: the tests of a few scans against a map of thousands
+    take microseconds, however often their place was visited; a query of many scans in a
     large map sweeps every box once (_BOX_TESTS).
     """
 

@@ -297,16 +297,17 @@ class Keyframes:
         Parameters
         ----------
         stamps: (M,) the trajectory's pose stamps, sorted, seconds.
-        slots: (M,) `trajectory_slots(stamps)` as it was before the stamps `changed` were
-            known: changed poses of the trajectory may hold anything.
+        slots: (M,) int64 `trajectory_slots(stamps)` as it was before the stamps `changed`
+            were known (changed poses of the trajectory may hold anything): brought up to date
+            in place.
         changed: (C,) seconds: keyframe and folded stamps added since `slots` was computed
             (`added_since`), and the stamps of poses new to the trajectory.
 
         Returns
         -------
-        (M,) int64: equal to `trajectory_slots(stamps)` (a new array).
+        (M,) int64: `slots`, now equal to `trajectory_slots(stamps)` (a trajectory holds
+        every pose of the run: no copy of it).
         """
-        slots = np.array(slots, dtype=np.int64)
         if changed.size == 0 or stamps.size == 0:
             return slots
         reach = 3.0 * self.tolerance + _STAMP_SLACK

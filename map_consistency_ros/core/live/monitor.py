@@ -28,6 +28,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
@@ -309,9 +310,12 @@ class ConsistencyMonitor:
         if stamps.ndim != 1 or poses.shape != (stamps.size, 3):
             raise ValueError(f'a trajectory needs stamps (M,) and poses (M, 3), got shapes '
                              f'{stamps.shape} and {poses.shape}')
+        if _clean_trajectory(stamps, poses, self.settings.max_pose_extent):
+            # one compiled pass: a trajectory holds every pose of the run, and a pass per check
+            # was most of what an update's cost grew by with it
+            self._path_stamps, self._path_poses = stamps, poses
+            return self._apply_path(())
         warnings = []
-        # column by column and no selection when nothing is dropped: a trajectory holds every
-        # pose of the run, and these passes are most of an update's cost that grows with it
         x, y = poses[:, 0], poses[:, 1]
         finite = (np.isfinite(stamps) & np.isfinite(x) & np.isfinite(y)
                   & np.isfinite(poses[:, 2]))
@@ -467,9 +471,9 @@ class ConsistencyMonitor:
     def _folded_count(self) -> int:
         return 0 if self._keyframes is None else int(self._keyframes.folded.size)
 
-    def _path_slots(self) -> np.ndarray:
-        """For each pose of the last trajectory, its keyframe slot, FOLDED or NO_SCAN (a
-        copy: callers fill in slots they register).
+    def _path_slots(self, writable: bool = False) -> np.ndarray:
+        """For each pose of the last trajectory, its keyframe slot, FOLDED or NO_SCAN:
+        read-only, or with `writable` a copy (callers fill in the slots they register).
 
         Kept, because the node asks on every scan whether one is pending, and carried over:
         a trajectory usually repeats the last one's poses and adds a few, so only the poses
@@ -478,27 +482,28 @@ class ConsistencyMonitor:
         stamps, keyframes = self._path_stamps, self._keyframes
         if keyframes is None:
             return np.full(stamps.size, NO_SCAN, dtype=np.int64)
-        cached = self._path_slots_of
+        cached, slots = self._path_slots_of, None
         if cached is not None and cached[1] is keyframes:
             old_stamps, _, version, old_slots = cached
             if old_stamps is stamps and version == keyframes.version:
-                return old_slots.copy()
-            if old_stamps.size <= stamps.size and np.array_equal(stamps[:old_stamps.size],
-                                                                 old_stamps):
-                slots = np.full(stamps.size, NO_SCAN, dtype=np.int64)
+                slots = old_slots
+            elif old_stamps.size <= stamps.size and (
+                    old_stamps is stamps
+                    or np.array_equal(stamps[:old_stamps.size], old_stamps)):
+                slots = np.empty(stamps.size, dtype=np.int64)
                 slots[:old_slots.size] = old_slots
+                slots[old_slots.size:] = NO_SCAN
                 changed = np.concatenate([keyframes.added_since(version),
                                           stamps[old_stamps.size:]])
                 slots = keyframes.refresh_slots(stamps, slots, changed)
-                self._path_slots_of = (stamps, keyframes, keyframes.version, slots)
-                return slots.copy()
-        slots = keyframes.trajectory_slots(stamps)
+        if slots is None:
+            slots = keyframes.trajectory_slots(stamps)
         self._path_slots_of = (stamps, keyframes, keyframes.version, slots)
-        return slots.copy()
+        return slots.copy() if writable else read_only(slots)
 
     def _apply_path(self, warnings: tuple[str, ...]) -> UpdateSummary:
         start = time.perf_counter()
-        path_slots = self._path_slots()
+        path_slots = self._path_slots(writable=True)
         moved = self._move_keyframes(path_slots)
         new = self._register(path_slots)
         self._unmatched_stamps = self._path_stamps[self._path_slots() == NO_SCAN]
@@ -687,3 +692,19 @@ class ConsistencyMonitor:
         if required.size:
             self._local.insert(required, self._measure_keys(required, incremental=True))
         return int(required.size)
+
+
+@numba.njit(cache=True)
+def _clean_trajectory(stamps: np.ndarray, poses: np.ndarray, extent: float) -> bool:
+    """Whether every pose is finite and within `extent` of the origin in x and y, and the
+    stamps are finite and strictly increase: nothing to skip, sort or warn about."""
+    previous = -np.inf
+    for k in range(stamps.size):
+        stamp, x, y = stamps[k], poses[k, 0], poses[k, 1]
+        if not (np.isfinite(stamp) and np.isfinite(x) and np.isfinite(y)
+                and np.isfinite(poses[k, 2])):
+            return False
+        if abs(x) > extent or abs(y) > extent or not stamp > previous:
+            return False
+        previous = stamp
+    return True

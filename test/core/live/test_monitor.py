@@ -496,6 +496,23 @@ def test_inconsistent_endpoints_are_the_points_inside_the_other_scan(intel):
     assert inconsistent_endpoints(scans, consistent).shape == (0, 2)
 
 
+def test_a_clean_trajectory_is_one_with_nothing_to_skip_sort_or_warn_about():
+    from map_consistency_ros.core.live.monitor import _clean_trajectory
+    stamps = np.array([1.0, 2.0, 3.0])
+    poses = np.array([[0.0, 0.0, 0.0], [5.0, -5.0, 3.0], [-10.0, 10.0, -3.0]])
+    assert _clean_trajectory(stamps, poses, 10.0)
+    faults = [(np.array([1.0, 2.0, 2.0]), poses),  # a stamp twice
+              (np.array([1.0, 3.0, 2.0]), poses),  # out of order
+              (np.array([1.0, np.nan, 3.0]), poses)]
+    for row, column, value in [(1, 0, np.nan), (2, 1, np.inf), (0, 2, np.nan), (1, 0, 10.5),
+                               (2, 1, -10.5)]:
+        bad = poses.copy()
+        bad[row, column] = value
+        faults.append((stamps, bad))
+    for fault_stamps, fault_poses in faults:
+        assert not _clean_trajectory(fault_stamps, fault_poses, 10.0)
+
+
 def test_settings_are_validated():
     for bad in [dict(laser_offset=(0.0, 0.0)), dict(laser_offset=(0.0, np.nan, 0.0)),
                 dict(max_buffered_scans=0), dict(stamp_tolerance=-1.0),
