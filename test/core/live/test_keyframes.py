@@ -58,6 +58,8 @@ def test_sorted_matching_and_the_kept_stamp_order_match_every_stamp_from_scratch
             found >= 0 for found in _nearest_by_brute_force(queries, slot_stamps, tolerance)]
     assert match_sorted(np.array([1.0]), np.zeros(0), 1.0).tolist() == [-1]
     assert match_sorted(np.zeros(0), np.array([1.0]), 1.0).tolist() == []
+    assert match_sorted(np.array([np.nan, np.inf, 1.2]), np.array([1.0, 2.0]),
+                        np.inf).tolist() == [-1, -1, 0]
 
 
 def test_out_of_order_keyframes_keep_the_stamp_order():

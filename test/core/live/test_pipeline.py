@@ -155,7 +155,8 @@ def test_warm_up_loads_every_kernel_of_both_stages():
     probe = ('import sys\n'
              'from map_consistency_ros.core.consistency import statistics\n'
              'from map_consistency_ros.core.geometry import ScanExtentIndex, pair_measures\n'
-             'from map_consistency_ros.core.live import _pair_selection, monitor, warm_up\n'
+             'from map_consistency_ros.core.live import _keyframes, _pair_selection, monitor\n'
+             'from map_consistency_ros.core.live import warm_up\n'
              'from map_consistency_ros.core.verdict import register_submaps\n'
              'warm_up()\n'
              'measure = sys.modules[pair_measures.__module__]\n'
@@ -165,8 +166,9 @@ def test_warm_up_loads_every_kernel_of_both_stages():
              'registration._thin_ranges, registration._register_tasks, '
              'statistics._critical_counts, index._overlapping, index._sweep_pairs, '
              '_pair_selection._partners_by_slot, _pair_selection._nearest_in_visits, '
-             '_pair_selection._kept_by_slot, monitor._clean_trajectory]\n'
+             '_pair_selection._kept_by_slot, monitor._clean_trajectory, '
+             '_keyframes._match_sorted]\n'
              'print(",".join(str(len(kernel.signatures)) for kernel in kernels))\n')
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
                           check=True)
-    assert done.stdout.strip() == '1,1,1,1,1,1,1,1,1,1,1'
+    assert done.stdout.strip() == '1,1,1,1,1,1,1,1,1,1,1,1'
