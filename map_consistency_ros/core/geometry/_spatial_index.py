@@ -200,8 +200,7 @@ class ScanExtentIndex:
         if rows.size * held.size <= _BOX_TESTS:
             first, second = _overlapping(self._boxes, rows, held)
         else:
-            boxes = self._boxes[held]
-            pairs = held[_sweep_pairs(boxes, np.argsort(boxes[:, 0], kind='stable'))]
+            pairs = held[candidate_pairs(self._boxes[held])]
             queried = np.zeros(self._held.size, dtype=bool)
             queried[rows] = True
             first, second = pairs[queried[pairs].any(axis=1)].T
