@@ -39,7 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import check, options, pool, replay, report
+from map_consistency_ros.cli import check, exit_codes, options, pool, replay, report
+from map_consistency_ros.cli.exit_codes import (EXIT_BAD_INPUT, EXIT_CONSISTENT,
+                                                EXIT_INTERNAL_ERROR)
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.live import FeedSettings, MonitorSettings
@@ -48,11 +50,8 @@ from map_consistency_ros.core.verdict import ExplanationSettings
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.parameter_file import read_parameter_file
 
-EXIT_CONSISTENT, EXIT_INCONSISTENT, EXIT_BAD_INPUT = 0, 1, 2
-EXIT_INTERNAL_ERROR = 3  # a job raised unexpectedly or its worker died: a bug, not the input
-
-VERDICTS = {EXIT_CONSISTENT: 'consistent', EXIT_INCONSISTENT: 'inconsistent',
-            EXIT_BAD_INPUT: 'bad input', EXIT_INTERNAL_ERROR: 'internal error'}
+# EXIT_INTERNAL_ERROR: a job raised unexpectedly or its worker died: a bug, not the input
+VERDICTS = exit_codes.NAMES
 COLUMNS = ('input', 'kind', 'verdict', 'exit_code', 'scans', 'summary_line', 'regions',
            'changed_places', 'runtime_seconds', 'error')
 
@@ -214,7 +213,7 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
             scan_ids = judgement.scan_ids
         row['runtime_seconds'] = time.perf_counter() - started
         _describe(row, judgement.assessment, scan_ids)
-        code = EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT
+        code = exit_codes.of_outcome(judgement.assessment.outcome)
         if figures:
             row['files'] = _files(args, judgement, scan_ids)
     except (InputError, OSError) as error:  # what `check` / `replay` exit 2 on
@@ -320,9 +319,10 @@ def run(args: argparse.Namespace) -> int:
 
     Returns
     -------
-    The exit code, the worst over the inputs: EXIT_INTERNAL_ERROR (3) when a job failed
-    unexpectedly, else EXIT_BAD_INPUT (2) when an input is bad, else EXIT_INCONSISTENT (1)
-    when a map is inconsistent, else EXIT_CONSISTENT (0). InputError (exit 2 through `main`)
+    The exit code, the worst over the inputs (exit_codes.RANK): EXIT_INTERNAL_ERROR (3) when
+    a job failed unexpectedly, else EXIT_BAD_INPUT (2) when an input is bad, else
+    EXIT_INCONSISTENT (1) when a map is inconsistent, else EXIT_NOTHING_TO_JUDGE (4) when a map
+    could not be judged, else EXIT_CONSISTENT (0). InputError (exit 2 through `main`)
     for a bad --workers or parameter file, or when the inputs hold no log, graph or bag.
     """
     if args.workers is not None and args.workers < 1:
@@ -356,7 +356,7 @@ def run(args: argparse.Namespace) -> int:
     if figures:
         index = write_html(args.html, rows, files)
         print(f'  {index}')
-    return max((row['exit_code'] for row in rows), default=EXIT_CONSISTENT)
+    return exit_codes.worst(row['exit_code'] for row in rows)
 
 
 def _died(item: tuple[str, str | None], died: pool.WorkerDied) -> dict:

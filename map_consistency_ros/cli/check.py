@@ -24,15 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import options, report
+from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
 from map_consistency_ros.core.verdict import Assessment, check_map
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
-
-EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -238,8 +236,8 @@ def run(args: argparse.Namespace) -> int:
 
     Returns
     -------
-    The exit code: EXIT_CONSISTENT (0) for a consistent map, EXIT_INCONSISTENT (1) for an
-    inconsistent one. Bad input raises InputError, which `main` turns into exit code 2.
+    The exit code of the verdict (cli/exit_codes.py): 0 consistent, 1 inconsistent, 4 nothing
+    to judge. Bad input raises InputError, which `main` turns into exit code 2.
     """
     judgement = judge(args)
     print(report.format_summary(judgement.assessment, str(args.log), judgement.scan_ids))
@@ -252,4 +250,4 @@ def run(args: argparse.Namespace) -> int:
                         ('pairs', args.pairs_csv), ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    return EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT
+    return exit_codes.of_outcome(judgement.assessment.outcome)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.cli import main as cli_main
-from map_consistency_ros.cli import check, replay, report
+from map_consistency_ros.cli import check, exit_codes, replay, report
 from map_consistency_ros.core.backend import PoseGraph, optimize
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.live import ConsistencyMonitor
@@ -92,7 +92,7 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
 
     Returns
     -------
-    The exit code of the verdict: EXIT_CONSISTENT (0), or EXIT_INCONSISTENT (1), the one
+    The exit code of the verdict (cli/exit_codes.py); EXIT_INCONSISTENT (1) is the one
     expected. RuntimeError when the bag carries no constraints.
     """
     graph = monitor.pose_graph()
@@ -115,7 +115,7 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
     check.write_outputs(outputs, scans, assessment, {'source': 'demo bag + one wrong loop '
                                                      f'closure {start}-{end}'})
     print(f'  report                {outputs.report}\n  figure                {outputs.plot}')
-    return replay.EXIT_CONSISTENT if assessment.consistent else replay.EXIT_INCONSISTENT
+    return exit_codes.of_outcome(assessment.outcome)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -137,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
                                                                   else []))
     corrected, monitor = replay.replay_and_report(replay_args)
     broken = break_map(monitor, out, replay_args)
-    as_expected = (corrected, broken) == (replay.EXIT_CONSISTENT, replay.EXIT_INCONSISTENT)
+    as_expected = (corrected, broken) == (exit_codes.EXIT_CONSISTENT,
+                                          exit_codes.EXIT_INCONSISTENT)
     print('\ndemo: ' + ('the corrected map passes and the wrong loop closure is caught'
                         if as_expected else 'UNEXPECTED verdicts (see above)'))
     return 0 if as_expected else 1

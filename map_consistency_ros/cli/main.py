@@ -1,9 +1,9 @@
 """`map-consistency`: offline consistency checks, DCS tuning, bag replay and conversion.
 
 Each subcommand lives in its own module of this package with `add_arguments(parser)` and
-`run(args) -> int`. Exit codes: 0 consistent (or success), 1 inconsistent, 2 bad input, 3 an
-internal error (a fault of this program, never a verdict: a pipeline must not read it as
-"inconsistent").
+`run(args) -> int`. Exit codes (cli/exit_codes.py): 0 consistent (or success), 1 inconsistent,
+2 bad input, 3 an internal error (a fault of this program, never a verdict: a pipeline must not
+read it as "inconsistent"), 4 nothing to judge.
 """
 from __future__ import annotations
 
@@ -15,13 +15,10 @@ import sys
 import traceback
 from importlib.metadata import PackageNotFoundError, version
 
+from map_consistency_ros.cli.exit_codes import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR
+from map_consistency_ros.cli.exit_codes import HELP as EXIT_CODES
 from map_consistency_ros.io.errors import InputError
 
-EXIT_BAD_INPUT = 2
-EXIT_INTERNAL_ERROR = 3
-# a line break for the subcommands' raw help; the overview's formatter wraps it as it likes
-EXIT_CODES = ('Exit codes: 0 consistent / success, 1 inconsistent map, 2 bad input,\n'
-              '3 internal error (one line on stderr naming the input; its traceback with --debug).')
 _DEBUG_HELP = 'on an internal error (exit 3), print its traceback too'
 
 # (subcommand, module, one-line help)
@@ -124,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns
     -------
-    The exit code: the subcommand's (0 consistent or success, 1 inconsistent); 2 for bad
+    The exit code: the subcommand's (0 consistent or success, 1 inconsistent, 4 nothing to
+    judge); 2 for bad
     input (InputError, OSError: one line on stderr; argparse exits 2 itself on bad options);
     3 for an internal error (one line on stderr naming the input, the traceback with
     --debug); 130 when interrupted.

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import check, options, plots, report
+from map_consistency_ros.cli import check, exit_codes, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.configuration import Configuration, unknown_parameters
 from map_consistency_ros.core.geometry import ScanSet
@@ -60,7 +60,6 @@ from map_consistency_ros.io.messages import (NEW_NODE_EVENT_TYPE, PATH_TYPE, POS
                                              time_message)
 from map_consistency_ros.io.parameter_file import read_parameter_file
 
-EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 _SHOWN_WARNINGS = 5
 _PUBLISH_DEPTH = 1000  # deep enough that a paced burst (a Path after its scan) is not dropped
 _DRAIN_SECONDS = 0.5  # let the last messages leave before the publishers go
@@ -574,8 +573,8 @@ def run(args: argparse.Namespace) -> int:
 
     Returns
     -------
-    The exit code: EXIT_CONSISTENT (0) for a consistent map, and after publishing;
-    EXIT_INCONSISTENT (1) for an inconsistent one. Bad input raises InputError, which `main`
+    The exit code of the verdict (cli/exit_codes.py: 0 consistent, and after publishing;
+    1 inconsistent; 4 nothing to judge). Bad input raises InputError, which `main`
     turns into exit code 2.
     """
     values = parameter_values(args)
@@ -657,7 +656,7 @@ def replay_and_report(args: argparse.Namespace,
 
     Returns
     -------
-    The exit code (EXIT_CONSISTENT or EXIT_INCONSISTENT) and the monitor in its final state.
+    The exit code of the verdict (cli/exit_codes.py) and the monitor in its final state.
     """
     judgement = judge(args, values)
     print(judgement.summary)
@@ -669,5 +668,5 @@ def replay_and_report(args: argparse.Namespace,
                         ('failed pairs figure', args.explain)):
         if path:
             print(f'  {label:<21} {path}', file=sys.stdout)
-    code = EXIT_CONSISTENT if judgement.consistent else EXIT_INCONSISTENT
+    code = exit_codes.of_outcome(judgement.assessment.outcome)
     return code, judgement.monitor

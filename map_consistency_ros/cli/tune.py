@@ -24,7 +24,7 @@ import argparse
 import time
 from pathlib import Path
 
-from map_consistency_ros.cli import options, report
+from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult, TuningSettings,
                                               tune_dcs)
@@ -35,7 +35,6 @@ from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
 
-EXIT_CONSISTENT, EXIT_INCONSISTENT = 0, 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -120,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
     Returns
     -------
-    EXIT_CONSISTENT when the map at Phi* is consistent, else EXIT_INCONSISTENT. InputError
+    The exit code of the verdict on the map at Phi* (cli/exit_codes.py). InputError
     (exit code 2) on bad options, files or graphs.
     """
     try:
@@ -163,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     if args.maps_plot:
         _save_maps(args.maps_plot, profile, baseline.optimization.poses, baseline_test, result,
                    tuned)
-    return EXIT_CONSISTENT if tuned.consistent else EXIT_INCONSISTENT
+    return exit_codes.of_outcome(tuned.outcome)
 
 
 def _print_summary(source: str, result: TuningResult, tuned: Assessment, baseline_value: float,
@@ -171,7 +170,7 @@ def _print_summary(source: str, result: TuningResult, tuned: Assessment, baselin
     print(f'{source}: Phi* = {result.phi:.6g}, map at Phi* {tuned.summary_line()}')
     print(f'  M(Phi*)               {result.average_inconsistency:.6g}')
     print(f'  M(1)                  {baseline_value:.6g} '
-          f'({"consistent" if baseline_test.consistent else "inconsistent"} at Phi = 1)')
+          f'({baseline_test.outcome} at Phi = 1)')
     print(f'  inconsistent scans    {int(result.consistency.inconsistent.sum())} of '
           f'{result.consistency.scan_count}')
     print(f'  evaluations           {len(result.profile_phi)}')

@@ -94,3 +94,28 @@ def test_the_console_entry_point_exits_3_on_an_internal_error(log, tmp_path):
         assert ('Traceback' in done.stderr) is bool(debug)
         if not debug:
             assert len(lines) == 1
+
+
+# ---------------------------------------------------------------- nothing to judge
+
+def test_a_log_of_one_scan_is_nothing_to_judge_exit_4(tmp_path, flaser_log, capsys,
+                                                        strict_json):
+    from test.conftest import rectangle_room_ranges
+    from map_consistency_ros.cli.exit_codes import EXIT_NOTHING_TO_JUDGE
+    poses = [[3.0, 2.0, 0.3]]
+    path = tmp_path / 'one.log'
+    flaser_log(path, rectangle_room_ranges(poses), poses)
+    report = tmp_path / 'report.json'
+    assert main(['check', str(path), '--quiet', '--report', str(report)]) == EXIT_NOTHING_TO_JUDGE
+    out = capsys.readouterr().out
+    assert f'{path}: NOTHING TO JUDGE: no scan has the 2 tested pairs' in out
+    content = strict_json(report.read_text())
+    assert content['verdict'] == 'nothing to judge'
+    assert content['nothing_to_judge_reason'].startswith('no scan has')
+
+
+@pytest.mark.parametrize('codes, worst', [([0, 4], 4), ([4, 1], 1), ([1, 2], 2), ([2, 3], 3),
+                                          ([0, 0], 0), ([], 0), ([4], 4)])
+def test_a_batch_ranks_nothing_to_judge_between_consistent_and_inconsistent(codes, worst):
+    from map_consistency_ros.cli import exit_codes
+    assert exit_codes.worst(codes) == worst

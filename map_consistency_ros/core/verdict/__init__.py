@@ -8,7 +8,9 @@ from map_consistency_ros.core.verdict._registration import (RegistrationSettings
                                                             SurfacePoints, nearest_point,
                                                             point_grid, register_submaps,
                                                             surface_points, symmetric_inverse)
-from map_consistency_ros.core.verdict.explanation import (CHANGE, MINOR, MISALIGNED,
+from map_consistency_ros.core.verdict._evidence import Evidence, evidence, flaggable_pair_count
+from map_consistency_ros.core.verdict.explanation import (CHANGE, CONSISTENT, INCONSISTENT,
+                                                          MINOR, MISALIGNED, NOTHING_TO_JUDGE,
                                                           PAIR_CLASSES, UNREGISTERED,
                                                           Assessment, PairClass, ChangedPlace,
                                                           ExplanationSettings, Misalignment,
@@ -26,6 +28,8 @@ __all__ = [
     'register_submaps',
     'ExplanationSettings', 'Misalignment', 'ChangedPlace', 'Assessment', 'RegistrationCache',
     'explain', 'check_map', 'misaligned_endpoints',
+    'CONSISTENT', 'INCONSISTENT', 'NOTHING_TO_JUDGE', 'Evidence', 'evidence',
+    'flaggable_pair_count',
     'PairClass', 'MISALIGNED', 'MINOR', 'CHANGE', 'UNREGISTERED', 'PAIR_CLASSES',
     'scan_names', 'result_report', 'assessment_report', 'plain', 'to_json', 'joined_json',
     # units the verdict is built from, tested on their own

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -36,9 +37,12 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   robust_statistic, statistics)
 from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2, spans
 from map_consistency_ros.core.parameters import Choice, Settings, parameter
+from map_consistency_ros.core.verdict._evidence import Evidence, evidence
 from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
                                                             register_submaps, surface_points)
 
+# The outcomes of a verdict: a map without enough tested pairs is never consistent.
+CONSISTENT, INCONSISTENT, NOTHING_TO_JUDGE = 'consistent', 'inconsistent', 'nothing to judge'
 
 
 class PairClass(Choice):
@@ -163,11 +167,32 @@ class Assessment:
         return (self.result.scan_count >= self.settings.min_region_scans
                 and self.local_distortion > self.settings.misalignment_tolerance)
 
+    @cached_property
+    def evidence(self) -> Evidence:
+        """What the tested pairs can support (core/verdict/_evidence.py)."""
+        return evidence(self.result, self.settings.min_region_scans)
+
+    @property
+    def failed(self) -> bool:
+        """Whether the active verdict found a failure (strict: a scan fails the paper's test;
+        else a misalignment above the tolerance, or a distorted chain). A failure found is
+        earned however little else was tested."""
+        if self.settings.strict:
+            return not self.result.consistent
+        return bool(self.misalignments) or self.distorted
+
+    @property
+    def outcome(self) -> str:
+        """The verdict: CONSISTENT, INCONSISTENT or NOTHING_TO_JUDGE (no failure found, but too
+        few tested pairs for the test to have found one: never consistent)."""
+        if self.failed:
+            return INCONSISTENT
+        return CONSISTENT if self.evidence.sufficient else NOTHING_TO_JUDGE
+
     @property
     def consistent(self) -> bool:
-        if self.settings.strict:
-            return self.result.consistent
-        return not self.misalignments and not self.distorted
+        """Whether the map is judged and passes (False for nothing to judge)."""
+        return self.outcome == CONSISTENT
 
     @property
     def flagged(self) -> np.ndarray:
@@ -192,9 +217,11 @@ class Assessment:
         The line, e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14
         changed places.
         """
-        verdict = 'CONSISTENT' if self.consistent else 'INCONSISTENT'
+        verdict = self.outcome.upper()
         places = len(self.changes)
         changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
+        if self.outcome == NOTHING_TO_JUDGE:
+            return f'{verdict}: {self.evidence.reason()}'
         if self.settings.strict:
             flagged = int(self.result.inconsistent.sum())
             return f'{verdict}: {flagged} scans fail the paper\'s test (strict verdict); {changes}'

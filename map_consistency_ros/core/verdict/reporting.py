@@ -72,8 +72,14 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
     ids = scan_names(assessment.result, scan_ids)
     content = result_report(assessment.result, scan_ids)
     content.update({
-        'verdict': 'consistent' if assessment.consistent else 'inconsistent',
+        'verdict': assessment.outcome,
         'summary_line': assessment.summary_line(),
+        # why nothing was judged (NOTHING_TO_JUDGE), else null
+        'nothing_to_judge_reason': (None if assessment.evidence.sufficient or assessment.failed
+                                    else assessment.evidence.reason()),
+        'evidence': {'flaggable_scans': assessment.evidence.flaggable_scans,
+                     'flaggable_pairs': assessment.evidence.flaggable_pairs,
+                     'needed_scans': assessment.evidence.needed_scans},
         'paper_verdict': 'consistent' if assessment.result.consistent else 'inconsistent',
         'explanation': assessment.settings.as_dict(),
         'explained_pairs': assessment.class_counts(),

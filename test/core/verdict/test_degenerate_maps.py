@@ -10,8 +10,9 @@ import pytest
 
 from map_consistency_ros.core.consistency import check_consistency, statistics
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
-from map_consistency_ros.core.verdict import (MISALIGNED, ExplanationSettings, RegistrationCache,
-                                              check_map, explain, register_submaps, surface_points)
+from map_consistency_ros.core.verdict import (MISALIGNED, NOTHING_TO_JUDGE, ExplanationSettings,
+                                              RegistrationCache, check_map, explain,
+                                              register_submaps, surface_points)
 from map_consistency_ros.evaluation.suite import displace
 from map_consistency_ros.io import carmen
 
@@ -169,8 +170,9 @@ def test_a_single_scan_and_no_scan(intel):
     for count in (1, 0):
         assessment = check_map(ScanSet.from_ranges(log.ranges[:count], log.laser_poses[:count],
                                                    model))
-        assert assessment.consistent and assessment.explained_pairs.size == 0
-        assert assessment.summary_line().startswith('CONSISTENT')
+        assert assessment.outcome == NOTHING_TO_JUDGE and not assessment.consistent
+        assert assessment.explained_pairs.size == 0
+        assert assessment.summary_line().startswith('NOTHING TO JUDGE')
 
 
 def test_scans_without_a_valid_beam(intel):
@@ -183,7 +185,8 @@ def test_scans_without_a_valid_beam(intel):
     assert not assessment.consistent  # the turned stretch is still found around the gap
     ranges[:] = np.inf
     empty = check_map(ScanSet.from_ranges(ranges, poses, model))
-    assert empty.consistent and empty.result.summary()['overlapping_pairs'] == 0
+    assert empty.outcome == NOTHING_TO_JUDGE
+    assert empty.result.summary()['overlapping_pairs'] == 0
 
 
 def test_one_wall_seen_from_one_place_determines_no_slide_along_it():
