@@ -26,8 +26,8 @@ import numpy as np
 
 from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
-from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.consistency import ConsistencyParameters, select_viewpoints
+from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.verdict import Assessment, check_map
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
@@ -103,15 +103,14 @@ def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
         ranges, poses = log.ranges, log.laser_poses
         names = np.arange(log.scan_count)
     selected = np.arange(0, len(ranges), args.every)
-    selected = selected[viewpoint_rows(poses[selected], parameters.viewpoint_spacing,
-                                       parameters.viewpoint_turn)]
     try:
         model = carmen.sensor_model(log, fov=options.fov_radians(args),
                                     max_range=args.max_range, range_min=args.range_min)
-        scans = ScanSet.from_ranges(ranges[selected], poses[selected], model)
+        every = ScanSet.from_ranges(ranges[selected], poses[selected], model)
     except ValueError as error:
         raise InputError(str(args.log), str(error)) from None
-    return log, names[selected], scans
+    rows = select_viewpoints(every, parameters)
+    return log, names[selected[rows]], every.take(rows)
 
 
 def is_graph(path: Path) -> bool:

@@ -34,8 +34,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+from map_consistency_ros.core.consistency import ConsistencyParameters, select_viewpoints
+from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.verdict import RegistrationSettings, register_submaps, surface_points
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
 from map_consistency_ros.io.datasets import RawBag, match_scans
@@ -348,11 +348,11 @@ def load(case: Case, data: Path, checkout: Path):
         moved = np.zeros(0, dtype=np.int64)
     # the viewpoints `check` tests, selected on the map's poses as it selects them
     parameters = ConsistencyParameters()
-    keep = viewpoint_rows(poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
+    every = ScanSet.from_ranges(log.ranges[rows], poses, sensor_model(log))
+    keep = select_viewpoints(every, parameters)
     displaced_row = np.zeros(len(rows), dtype=bool)
     displaced_row[moved] = True
-    scans = ScanSet.from_ranges(log.ranges[rows[keep]], poses[keep], sensor_model(log))
-    return scans, true_poses[keep], np.flatnonzero(displaced_row[keep])
+    return every.take(keep), true_poses[keep], np.flatnonzero(displaced_row[keep])
 
 
 def run_case(case: Case, data: Path, checkout: Path) -> dict:

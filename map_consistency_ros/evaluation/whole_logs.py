@@ -24,8 +24,8 @@ import numpy as np
 
 from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
                                                   check_consistency, map_statistic,
-                                                  pair_log_likelihoods)
-from map_consistency_ros.core.geometry import ScanSet, se2, viewpoint_rows
+                                                  pair_log_likelihoods, select_viewpoints)
+from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.verdict import Assessment, ExplanationSettings, explain
 from map_consistency_ros.evaluation import runner
 from map_consistency_ros.evaluation.suite import CORRECTED_LOGS, displace
@@ -238,10 +238,10 @@ def map_scans(whole: WholeLogMap, parameters: ConsistencyParameters | None = Non
     (ScanSet of the V viewpoints, their rows (V,) into the map's scans).
     """
     parameters = parameters or ConsistencyParameters()
-    rows = viewpoint_rows(whole.poses, parameters.viewpoint_spacing, parameters.viewpoint_turn)
     log = runner.cached_log(whole.log_path)
-    return ScanSet.from_ranges(log.ranges[whole.scan_indices[rows]], whole.poses[rows],
-                               sensor_model(log)), rows
+    every = ScanSet.from_ranges(log.ranges[whole.scan_indices], whole.poses, sensor_model(log))
+    rows = select_viewpoints(every, parameters)
+    return every.take(rows), rows
 
 
 def assess(whole: WholeLogMap, parameters: ConsistencyParameters | None = None,

@@ -395,7 +395,7 @@ def test_duration_limits_the_replay(strict_json, intel_odometry, tmp_path):
     bag_path, _, details, _ = intel_odometry
     code = main(['replay', str(bag_path), '--duration', '20', '--quiet',
                  '--report', str(tmp_path / 'r.json')])
-    assert code in (0, 1)
+    assert code in (0, 1, 4)  # 20 s may hold too little travel to judge
     replayed = strict_json((tmp_path / 'r.json').read_text())['replay']
     assert 15 < replayed['bag_seconds_replayed'] <= 20
     assert replayed['scan_messages'] < details['replay']['scan_messages']

@@ -17,12 +17,12 @@ from map_consistency_ros.core.consistency._check import (ConsistencyParameters,
                                                          inconsistent_endpoints, local_pairs,
                                                          local_scales, pair_endpoints,
                                                          robust_statistic, robust_sums,
-                                                         scales_from_bounds)
+                                                         scales_from_bounds, select_viewpoints)
 
 __all__ = [
     'statistics',
     'ConsistencyParameters', 'ConsistencyResult', 'Progress', 'check_consistency',
-    'evaluate_pairs', 'local_pairs', 'local_scales', 'robust_sums',
+    'evaluate_pairs', 'select_viewpoints', 'local_pairs', 'local_scales', 'robust_sums',
     'NO_BOUND', 'add_local_bounds', 'scales_from_bounds',
     'robust_statistic', 'average_inconsistency', 'inconsistent_endpoints', 'pair_endpoints',
     'BaselineParameters', 'LocalGrids', 'PairLikelihoods', 'local_grids', 'pair_log_likelihoods',

@@ -18,7 +18,7 @@ from numba import njit
 from map_consistency_ros.core.consistency import statistics
 from map_consistency_ros.core.geometry import (PairMeasures, ScanSet, candidate_pairs,
                                                extents_overlap, measure_pairs, pair_measures,
-                                               pairs_point_distances)
+                                               pairs_point_distances, viewpoint_rows)
 from map_consistency_ros.core.parameters import Settings, parameter
 
 Progress = Callable[[int, int], None]
@@ -45,6 +45,13 @@ class ConsistencyParameters(Settings):
     viewpoint_turn: float = parameter(
         0.4, 'a scan turned this far from the previous viewpoint is a viewpoint too (0: every '
         'scan)', 'rad', (0.0, 3.15))
+    fold_depth: float = parameter(
+        0.2, 'an end point this deep inside the other scan\'s free space disagrees with it, when '
+        'a scan is folded into its viewpoint (beyond noise: several times the scale s_i)', 'm',
+        (0.0, 100.0))
+    fold_disagreement: float = parameter(
+        0.25, 'a scan within reach of its viewpoint still becomes one when more than this share '
+        'of their end points disagree (1: fold by pose alone)', '', (0.0, 1.0))
     local_window: int = parameter(
         40, 'temporally adjacent viewpoints that fit a local scale, half on each side',
         'viewpoints', (0, 1000))
@@ -74,6 +81,24 @@ class ConsistencyParameters(Settings):
         A dict of every field by name (dataclasses.asdict).
         """
         return asdict(self)
+
+
+def select_viewpoints(scans: ScanSet, parameters: ConsistencyParameters) -> np.ndarray:
+    """The viewpoints the test runs on among scans in travel order (geometry.viewpoint_rows:
+    by travel and turn, and a scan that disagrees with its viewpoint is one of its own).
+
+    Parameters
+    ----------
+    scans: the scans at their sensor poses, in travel order.
+    parameters: the viewpoint spacing and turn and the fold's depth and disagreement.
+
+    Returns
+    -------
+    (V,) int64 rows of `scans`, increasing.
+    """
+    return viewpoint_rows(scans.sensor_poses, parameters.viewpoint_spacing,
+                          parameters.viewpoint_turn, scans, parameters.fold_depth,
+                          parameters.fold_disagreement)
 
 
 def _half_window(window: int) -> int:

@@ -11,7 +11,10 @@ from map_consistency_ros.core.geometry._measure import (PairMeasures, measure_pa
 from map_consistency_ros.core.geometry._scan_geometry import SCAN_ARRAYS, ScanSet, SensorModel
 from map_consistency_ros.core.geometry._spatial_index import (ScanExtentIndex, candidate_pairs,
                                                               extents_overlap)
-from map_consistency_ros.core.geometry._viewpoints import is_new_viewpoint, viewpoint_rows
+from map_consistency_ros.core.geometry._viewpoints import (SAME_HEADING, SAME_POSITION,
+                                                         disagreement, disagreements,
+                                                         is_new_viewpoint, same_pose,
+                                                         viewpoint_rows)
 
 __all__ = [
     'se2',
@@ -19,6 +22,7 @@ __all__ = [
     'candidate_pairs', 'extents_overlap', 'ScanExtentIndex',
     'PairMeasures', 'pair_measures', 'measure_pairs', 'pair_measures_naive', 'point_distances',
     'pairs_point_distances',
-    'viewpoint_rows', 'is_new_viewpoint',
+    'viewpoint_rows', 'is_new_viewpoint', 'disagreement', 'disagreements', 'same_pose',
+    'SAME_POSITION', 'SAME_HEADING',
     'with_rows', 'read_only', 'spans',
 ]

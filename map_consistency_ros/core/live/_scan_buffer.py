@@ -44,6 +44,19 @@ class ScanBuffer:
             self._scans.pop(min(self._scans))
             self.dropped += 1
 
+    def peek(self, stamp: float) -> np.ndarray:
+        """A held scan, left in the buffer.
+
+        Parameters
+        ----------
+        stamp: exactly the stamp of a held scan (KeyError otherwise).
+
+        Returns
+        -------
+        (K,) the scan's ranges.
+        """
+        return self._scans[stamp]
+
     def pop(self, stamp: float) -> np.ndarray:
         """Take a scan out of the buffer.
 

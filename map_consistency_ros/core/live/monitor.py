@@ -37,8 +37,8 @@ from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameter
                                                   ConsistencyResult, add_local_bounds,
                                                   evaluate_pairs, scales_from_bounds)
 from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, ScanSet,
-                                               SensorModel, is_new_viewpoint, measure_pairs,
-                                               read_only, se2)
+                                               SensorModel, disagreement, is_new_viewpoint,
+                                               measure_pairs, read_only, same_pose, se2)
 from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_sorted,
                                                       match_stamps, rank_of_slot)
 from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair_keys
@@ -546,7 +546,7 @@ class ConsistencyMonitor:
             place = int(np.searchsorted(known, index))
             earlier = max(int(known[place - 1]) if place else -1, registered)
             later = int(known[place]) if place < known.size else -1
-            if not self._new_viewpoint(index, earlier):
+            if not self._new_viewpoint(index, earlier, path_slots, float(buffered)):
                 self._buffer.pop(float(buffered))
                 folded.append(float(buffered))
                 path_slots[index] = FOLDED
@@ -563,17 +563,27 @@ class ConsistencyMonitor:
             self._keyframes.fold(folded)
         return np.asarray(new, dtype=np.int64)
 
-    def _new_viewpoint(self, index: int, earlier: int) -> bool:
-        """Whether pose `index` of the trajectory is a viewpoint: far enough from the nearest
-        earlier keyframe of the trajectory, pose `earlier` (core/geometry/_viewpoints.py). A
-        pose with no earlier keyframe (-1: the first, or a late first scan) always is."""
+    def _new_viewpoint(self, index: int, earlier: int, path_slots: np.ndarray,
+                       stamp: float) -> bool:
+        """Whether pose `index` of the trajectory, whose scan is the buffered one at `stamp`, is
+        a viewpoint: far enough from the nearest earlier keyframe of the trajectory, pose
+        `earlier`, or disagreeing with that keyframe's scan (core/geometry/_viewpoints.py, as
+        `check` selects them). A pose with no earlier keyframe (-1: the first, or a late first
+        scan) always is."""
         if earlier < 0:
             return True
         # the laser's travel, as check measures it on a log's laser poses
         laser = sensor_poses(self._path_poses[[earlier, index]], self._offset)
         step = se2.relative(laser[0], laser[1])
-        return is_new_viewpoint(step, self.parameters.viewpoint_spacing,
-                                self.parameters.viewpoint_turn)
+        parameters = self.parameters
+        if is_new_viewpoint(step, parameters.viewpoint_spacing, parameters.viewpoint_turn):
+            return True
+        if parameters.fold_disagreement >= 1.0 or not same_pose(laser[0], laser[1]):
+            return False
+        ranges = np.stack([self._keyframes.ranges[path_slots[earlier]],
+                           self._buffer.peek(stamp)])
+        pair = ScanSet.from_ranges(ranges, laser, self._model)
+        return disagreement(pair, 0, 1, parameters.fold_depth) > parameters.fold_disagreement
 
     def _incremental_pose(self, index: int, anchor: int, path_slots: np.ndarray
                           ) -> np.ndarray:

@@ -38,6 +38,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
 from map_consistency_ros.core.geometry import SCAN_ARRAYS, ScanSet, pair_measures, se2, spans
 from map_consistency_ros.core.parameters import Choice, Settings, parameter
 from map_consistency_ros.core.verdict._evidence import Evidence, evidence
+from map_consistency_ros.core.verdict._frozen import FrozenEstimate, frozen_estimates
 from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
                                                             register_submaps, surface_points)
 
@@ -158,6 +159,9 @@ class Assessment:
     # registered regions whose correction moves their points by at most the tolerance: real,
     # and reported, but no reason to fail the map
     minor_misalignments: tuple[Misalignment, ...] = ()
+    # stretches whose pose stood still while the scans moved (_frozen.py): a map error in any
+    # verdict, strict or not
+    frozen: tuple[FrozenEstimate, ...] = ()
 
     @property
     def distorted(self) -> bool:
@@ -177,6 +181,8 @@ class Assessment:
         """Whether the active verdict found a failure (strict: a scan fails the paper's test;
         else a misalignment above the tolerance, or a distorted chain). A failure found is
         earned however little else was tested."""
+        if self.frozen:
+            return True
         if self.settings.strict:
             return not self.result.consistent
         return bool(self.misalignments) or self.distorted
@@ -217,6 +223,15 @@ class Assessment:
         The line, e.g. INCONSISTENT: 2 misaligned regions (largest 0.31 m, 1.9 deg); 14
         changed places.
         """
+        line = self._findings_line()
+        if not self.frozen:
+            return line
+        stood = sum(stretch.scans.size for stretch in self.frozen)
+        verdict, rest = line.split(': ', 1)
+        return (f'{verdict}: the pose estimate stood still over {stood} scans while they show '
+                f'the robot moving (a frozen estimate); {rest}')
+
+    def _findings_line(self) -> str:
         verdict = self.outcome.upper()
         places = len(self.changes)
         changes = f'{places} changed place{"" if places == 1 else "s"} (people, moved objects)'
@@ -957,12 +972,14 @@ def _spans_beyond_changes(scans: ScanSet, result: ConsistencyResult, rows: np.nd
     return bool(np.count_nonzero(extent[labels] > settings.max_change_extent) * 2 > len(points))
 
 
-def _empty(result: ConsistencyResult, settings: ExplanationSettings) -> Assessment:
+def _empty(result: ConsistencyResult, settings: ExplanationSettings,
+           frozen: tuple[FrozenEstimate, ...]) -> Assessment:
     return Assessment(result=result, settings=settings, explained_pairs=np.zeros(0, np.int64),
                       pair_classes=np.zeros(0, np.int64), pair_corrections=np.zeros((0, 3)),
                       pair_displacements=np.zeros(0),
                       misaligned_scans=np.zeros(result.scan_count, dtype=bool),
-                      misalignments=(), changes=(), local_distortion=_local_distortion(result))
+                      misalignments=(), changes=(), local_distortion=_local_distortion(result),
+                      frozen=frozen)
 
 
 class RegistrationCache:
@@ -1051,11 +1068,12 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     settings = settings or ExplanationSettings()
     if scans.scan_count != result.scan_count:
         raise ValueError(f'{scans.scan_count} scans for a result on {result.scan_count}')
+    frozen = frozen_estimates(scans, result.parameters, settings.min_region_scans)
     pairs_all = result.pairs
     rows = np.flatnonzero(result.failed & (result.inconsistent[pairs_all[:, 0]]
                                            | result.inconsistent[pairs_all[:, 1]]))
     if rows.size == 0:
-        return _empty(result, settings)
+        return _empty(result, settings, frozen)
     pairs = pairs_all[rows]
     tasks, task_of_pair = _tasks(pairs, settings, scans.scan_count)
     registrations = (register_submaps(surface_points(scans.endpoints, scans.valid), tasks,
@@ -1106,7 +1124,8 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
                       pair_corrections=transforms, pair_displacements=displacement,
                       misaligned_scans=flagged, misalignments=misalignments, changes=changes,
-                      local_distortion=_local_distortion(result), minor_misalignments=minor)
+                      local_distortion=_local_distortion(result), minor_misalignments=minor,
+                      frozen=frozen)
 
 
 def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,

@@ -91,6 +91,8 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
                                 for region in assessment.minor_misalignments],
         'changes': [{'scans': ids[place.scans], 'x': place.x, 'y': place.y,
                      'points': place.points} for place in assessment.changes],
+        'frozen_estimates': [{'scans': ids[stretch.scans], 'changes': stretch.changes}
+                             for stretch in assessment.frozen],
     })
     return content
 
