@@ -41,6 +41,8 @@ class MonitorHealth:
     start_failure: str = ''  # why the kernels failed to load: nothing is monitored
     # why the last explanation failed ('' after a success): the verdict shown is older
     explanation_failure: str = ''
+    # the verdict is "nothing to judge": too few tested pairs (never OK, never consistent)
+    nothing_to_judge: bool = False
 
     @property
     def loss(self) -> str:
@@ -77,7 +79,8 @@ def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     Returns
     -------
     (level, message): ERROR when the node could not start, WARN while it starts, STALE
-    without recent input, ERROR for an inconsistent map, WARN for no verdict yet, lost input,
+    without recent input, ERROR for an inconsistent map, WARN for no verdict yet, nothing to
+    judge (too few tested pairs), lost input,
     a failed second stage or a recent bad message, OK otherwise.
     """
     if health.start_failure:
@@ -95,6 +98,8 @@ def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     problems = f'; {health.loss}' if health.loss else ''
     if health.explanation_failure:
         problems += f'; {health.explanation_failure}'
+    if health.nothing_to_judge:
+        return DiagnosticStatus.WARN, f'map {health.verdict}{problems}'
     if health.consistent is False:
         return DiagnosticStatus.ERROR, f'map {health.verdict}{problems}'
     if health.consistent is None:

@@ -18,7 +18,8 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float64, String
 from visualization_msgs.msg import MarkerArray
 
-from map_consistency_ros.core.verdict import assessment_report, joined_json, to_json
+from map_consistency_ros.core.verdict import (NOTHING_TO_JUDGE, assessment_report, joined_json,
+                                              to_json)
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros.conversions import message_class
 from map_consistency_ros.ros.diagnostics import MonitorHealth, map_status
@@ -83,7 +84,8 @@ class Outputs:
         built = time.perf_counter()
         if markers.markers:
             self._markers.publish(markers)
-        self._consistent.publish(Bool(data=verdict.consistent))
+        if verdict.assessment.outcome != NOTHING_TO_JUDGE:  # only an earned verdict
+            self._consistent.publish(Bool(data=verdict.consistent))
         self.timing.update(markers_s=built - start, publish_s=time.perf_counter() - built)
         if changed_at is not None:
             self.latency = time.monotonic() - changed_at
@@ -165,7 +167,8 @@ class Outputs:
             folded_scans=snapshot.folded_scans, resets=feed.resets,
             last_reset=feed.last_reset, starting=not engine.ready,
             start_failure=engine.start_failure,
-            explanation_failure=engine.explanation_failure)
+            explanation_failure=engine.explanation_failure,
+            nothing_to_judge=assessment is not None and assessment.outcome == NOTHING_TO_JUDGE)
 
     def _report_text(self) -> str:
         """The machine-readable report of ~/report (the one place it is built), strict JSON:

@@ -18,6 +18,11 @@ BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
           'verdict': 'INCONSISTENT: 1 misaligned region (largest 0.31 m, 1.5 deg); 2 changed '
                      'places (people, moved objects)'}
 
+# one keyframe, the rest folded: never OK, never ERROR (nothing was found wrong either)
+NOTHING = {'consistent': False, 'nothing_to_judge': True, 'keyframes': 1,
+           'verdict': 'NOTHING TO JUDGE: only 1 scan has the 2 tested pairs the test needs to '
+                      'flag a scan (1 tested pairs in all; a verdict needs 6 such scans)'}
+
 
 @pytest.mark.parametrize('changes, level, words', [
     ({}, DiagnosticStatus.OK, 'map CONSISTENT: no misalignment above 0.10 m; 2 changed places '
@@ -49,6 +54,7 @@ BROKEN = {'consistent': False, 'misaligned_regions': 1, 'misaligned_scans': 7,
      DiagnosticStatus.WARN, 'no verdict yet (120 scans); explanation failed: MemoryError'),
     ({**BROKEN, 'explanation_failure': 'explanation failed: ValueError: x'},
      DiagnosticStatus.ERROR, 'objects); explanation failed: ValueError: x'),
+    (NOTHING, DiagnosticStatus.WARN, 'map NOTHING TO JUDGE: only 1 scan has'),
 ])
 def test_levels(changes, level, words):
     got_level, message = status_level(dataclasses.replace(HEALTHY, **changes))
