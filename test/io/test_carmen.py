@@ -84,6 +84,51 @@ def test_bad_input_names_file_and_line(tmp_path, content, message, line):
     assert str(path) in str(caught.value)
 
 
+# FLASER 3 ranges, laser pose, robot pose, ipc timestamp, host, logger timestamp
+_FIELDS = ['1.0', '2.0', '3.0', '0', '0', '0', '0', '0', '0', '1', 'h', '1']
+
+
+def _flaser(position: int, value: str) -> str:
+    fields = list(_FIELDS)
+    fields[position] = value
+    return 'FLASER 3 ' + ' '.join(fields) + '\n'
+
+
+@pytest.mark.parametrize('position,value,message', [
+    (3, '1e300', r'laser pose x 1e\+300 is beyond 1e\+06 m'),
+    (4, '-2e6', r'laser pose y -2000000.0 is beyond'),
+    (5, '1e200', r'laser pose theta 1e\+200 is beyond 1000 rad'),
+    (5, 'inf', 'laser pose theta inf is not finite'),
+    (8, 'nan', 'robot pose theta nan is not finite'),
+    (11, 'nan', 'logger timestamp nan is not finite'),
+    (11, '-1', 'logger timestamp -1.0 is negative'),
+    (11, '1e12', 'logger timestamp 1000000000000.0 is beyond'),
+    (1, 'nan', 'range 2 nan is not finite'),
+    (2, '-inf', 'range 3 -inf is not finite'),
+    (0, '1e300', r'range 1 1e\+300 is beyond'),
+])
+def test_implausible_numbers_are_bad_input(tmp_path, position, value, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(FLASER + _flaser(position, value))
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 2
+    assert str(path) in str(caught.value)
+
+
+@pytest.mark.parametrize('head,message', [
+    ('nan 3.0 1.5 20.0', 'start angle nan is not finite'),
+    ('-1.5 1e9 1.5 20.0', 'field of view 1000000000.0 is beyond'),
+    ('-1.5 3.0 1.5 inf', 'maximum range inf is not finite'),
+])
+def test_implausible_laser_parameters_are_bad_input(tmp_path, head, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(f'ROBOTLASER1 0 {head} 0.01 0 3 1.0 2.0 3.0 0 0 0 0 0 0 0 0 0 0 0 0 1 h 1\n')
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 1
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match='no such file'):
         carmen.read_carmen_log(tmp_path / 'absent.log')
