@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import lzma
 import math
+import re
 import struct
 import zlib
 from collections.abc import Iterator, Sequence
@@ -116,7 +117,7 @@ class BagReader:
             reader = AnyReader(self.paths, default_typestore=typestore)
             reader.open()
         except _bag_errors() as error:
-            raise InputError(self.source, f'not a readable ROS bag ({_describe(error)})') from None
+            raise _unreadable(self.source, error) from None
         self._reader = reader
         try:
             self._check_topics()
@@ -357,8 +358,30 @@ class BagReader:
 
 
 def _describe(error: BaseException) -> str:
-    text = str(error).strip()
+    """The error in one line: a multi-line message (a YAML parser's, with the offending
+    source quoted) keeps its unindented lines."""
+    lines = [line.strip() for line in str(error).splitlines()
+             if line.strip() and not line[0].isspace()]
+    text = '; '.join(lines)
     return f'{type(error).__name__}: {text}' if text else type(error).__name__
+
+
+# rosbags' words for a metadata.yaml its YAML parser refused, and the parser's position marks
+_BAD_YAML = re.compile(r'Could not load YAML from (?P<path>.+?): (?P<problem>.*)', re.DOTALL)
+_YAML_MARK = re.compile(r'line (\d+), column')
+
+
+def _unreadable(source: str, error: BaseException) -> InputError:
+    """The InputError of a bag rosbags cannot open: a malformed metadata.yaml is named with
+    the line of the problem, anything else as an unreadable bag."""
+    match = _BAD_YAML.match(str(error).strip())
+    if match is None:
+        return InputError(source, f'not a readable ROS bag ({_describe(error)})')
+    marks = _YAML_MARK.findall(match['problem'])
+    problem = '; '.join(line.strip() for line in match['problem'].splitlines()
+                        if line.strip() and not line[0].isspace())
+    return InputError(match['path'], f'malformed YAML in the bag\'s metadata ({problem})',
+                      int(marks[-1]) if marks else None)
 
 
 # -- writing ---------------------------------------------------------------------------------

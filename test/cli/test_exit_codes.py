@@ -94,3 +94,15 @@ def test_the_console_entry_point_exits_3_on_an_internal_error(log, tmp_path):
         assert ('Traceback' in done.stderr) is bool(debug)
         if not debug:
             assert len(lines) == 1
+
+
+def test_bad_input_is_one_line_whatever_the_message_holds(log, monkeypatch, capsys):
+    from map_consistency_ros.io.errors import InputError
+
+    def _bad(*_, **__):
+        raise InputError('in.yaml', 'while parsing\n  in "<unicode string>"\nexpected', 3)
+
+    monkeypatch.setattr(check, 'judge', _bad)
+    assert main(['check', str(log), '--quiet']) == 2
+    assert _lines(capsys.readouterr().err) == [
+        'map-consistency check: in.yaml:3: while parsing in "<unicode string>" expected']
