@@ -24,6 +24,7 @@ from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, check_laser_r
                                            check_poses, open_text, parse_floats,
                                            parse_robotlaser)
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import staged
 
 _LASER_OFFSET_TOLERANCE = 1e-6
 
@@ -116,7 +117,8 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
 
     Parameters
     ----------
-    path: the file to write (plain text; replaced if it exists).
+    path: the file to write (plain text; replaced if it exists), whole or not at all
+        (io/staging.py).
     content: the graph, its vertex ids (written in place of the indices) and optional scans;
         the scans must share one laser offset (`G2oGraph.laser_offset`, else InputError).
     """
@@ -138,7 +140,8 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
     for a, b, measurement, info in zip(ids[graph.edge_from], ids[graph.edge_to],
                                        graph.measurements, upper):
         lines.append(f'EDGE_SE2 {a} {b} {_numbers(measurement)} {_numbers(info)}')
-    Path(path).write_text('\n'.join(lines) + '\n')
+    with staged(path) as target:
+        target.write_text('\n'.join(lines) + '\n')
 
 
 def _numbers(values: np.ndarray) -> str:
