@@ -24,6 +24,7 @@ import numpy as np
 from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import StagedOutputs
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE,
                                              LOOP_CLOSURE_EVENT_TYPE, MARKER_ARRAY_TYPE,
                                              NEW_NODE_EVENT_TYPE, PATH_TYPE, PathReader,
@@ -392,7 +393,8 @@ class BagWriter:
 
     Use as a context manager; `path` must not exist. Each write takes its log time in seconds
     (the time the message would have been published). `compress` turns on zstd chunk
-    compression (mcap only).
+    compression (mcap only). The bag is written beside `path` and appears there whole when the
+    `with` block ends normally; when it raises, nothing is left (io/staging.py).
     """
 
     def __init__(self, path: str | Path, storage: str = 'mcap', compress: bool = False,
@@ -406,6 +408,7 @@ class BagWriter:
         self.compress = compress
         self.topics = topics
         self._writer = None
+        self._outputs: StagedOutputs | None = None
         self._connections: dict[str, object] = {}
 
     def __enter__(self) -> BagWriter:
@@ -417,10 +420,15 @@ class BagWriter:
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         register_slam_toolbox_types(self.typestore)
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
-        writer = Writer(self.path, version=9, storage_plugin=plugin)
-        if self.compress:
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        writer.open()
+        self._outputs = StagedOutputs()
+        try:
+            writer = Writer(self._outputs.path(self.path), version=9, storage_plugin=plugin)
+            if self.compress:
+                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            writer.open()
+        except BaseException:
+            self._outputs.discard()
+            raise
         self._writer = writer
         for topic, msgtype in ((self.topics.scan, SCAN_TYPE),
                                (self.topics.constraints, CONSTRAINTS_TYPE)):
@@ -428,10 +436,20 @@ class BagWriter:
                                                                typestore=self.typestore)
         return self
 
-    def __exit__(self, *exc_info) -> None:
-        if self._writer is not None:
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        if self._writer is None:
+            return
+        try:
             self._writer.close()
+        except BaseException:
+            self._outputs.discard()
+            raise
+        finally:
             self._writer = None
+        if exc_type is None:
+            self._outputs.commit()
+        else:
+            self._outputs.discard()
 
     def _write(self, msgtype: str, time: float, message) -> None:
         if msgtype not in self._connections:
