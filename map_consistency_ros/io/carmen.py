@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import gzip
 import math
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,6 +65,11 @@ class CarmenLog:
         return int(self.ranges.shape[1])
 
 
+# What reading a damaged file raises: a cut gzip stream EOFError, a bad CRC OSError, a garbled
+# deflate stream zlib.error.
+READ_ERRORS = (OSError, EOFError, UnicodeError, zlib.error)
+
+
 def open_text(path: Path):
     """A text stream of a plain or gzip-compressed file (told apart by its magic bytes).
 
@@ -74,7 +80,7 @@ def open_text(path: Path):
     Returns
     -------
     An open UTF-8 text stream (undecodable bytes replaced), for the caller to close; OSError
-    when the file cannot be opened.
+    when the file cannot be opened. Reading it raises one of READ_ERRORS for a damaged file.
     """
     with open(path, 'rb') as probe:
         gzipped = probe.read(2) == b'\x1f\x8b'
@@ -310,7 +316,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
                 robot_poses.append(robot_pose)
                 timestamps.append(stamp)
                 lines.append(line_number)
-    except (OSError, EOFError, UnicodeError) as error:
+    except READ_ERRORS as error:
         raise InputError(source, f'cannot read the file ({error})') from None
     if not ranges:
         raise InputError(source, 'no FLASER or ROBOTLASER1 laser records found')

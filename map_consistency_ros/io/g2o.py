@@ -20,9 +20,9 @@ import numpy as np
 
 from map_consistency_ros.core.backend import PoseGraph, information_from_upper, information_upper
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, check_laser_records,
-                                           check_poses, open_text, parse_floats,
-                                           parse_robotlaser)
+from map_consistency_ros.io.carmen import (READ_ERRORS, CarmenLog, LaserAngles,
+                                           check_laser_records, check_poses, open_text,
+                                           parse_floats, parse_robotlaser)
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.staging import staged
 
@@ -104,7 +104,7 @@ def read_g2o(path: str | Path) -> G2oGraph:
                 tokens = text.split()
                 if tokens and not tokens[0].startswith('#'):
                     reader.record(tokens, line_number)
-    except (OSError, EOFError, UnicodeError) as error:
+    except READ_ERRORS as error:
         raise InputError(source, f'cannot read the file ({error})') from None
     return reader.result()
 

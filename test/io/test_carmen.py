@@ -134,6 +134,14 @@ def test_missing_file(tmp_path):
         carmen.read_carmen_log(tmp_path / 'absent.log')
 
 
+def test_garbled_gzip(tmp_path, shared_data):
+    data = (shared_data / 'carmen_corrected_extra' / 'orebro-corrected.log.gz').read_bytes()
+    path = tmp_path / 'garbled.log.gz'
+    path.write_bytes(data[:1000] + b'\xff' * 16 + data[1016:])  # a broken deflate stream
+    with pytest.raises(InputError, match='cannot read the file'):
+        carmen.read_carmen_log(path)
+
+
 def test_truncated_gzip(tmp_path, shared_data):
     data = (shared_data / 'carmen_corrected_extra' / 'orebro-corrected.log.gz').read_bytes()
     path = tmp_path / 'cut.log.gz'
