@@ -41,14 +41,18 @@ class StagedOutputs:
         Returns
         -------
         A path that does not exist yet, in a new hidden folder beside `final`, with the same
-        name. Raises IsADirectoryError when `final` is an existing folder.
+        name. Raises IsADirectoryError when `final` is an existing folder, and OSError naming
+        `final` when its folder cannot be made or written to.
         """
         final = Path(final)
         if final.is_dir():
             raise IsADirectoryError(errno.EISDIR, 'is a folder; name a file', str(final))
-        self._make_folder(final.parent)
-        staging = Path(tempfile.mkdtemp(prefix=f'.{final.name}.', suffix='.partial',
-                                        dir=final.parent))
+        try:
+            self._make_folder(final.parent)
+            staging = Path(tempfile.mkdtemp(prefix=f'.{final.name}.', suffix='.partial',
+                                            dir=final.parent))
+        except OSError as error:  # named after the output, not the staging folder
+            raise OSError(error.errno, error.strerror, str(final)) from None
         self._staged.append((staging, final))
         return staging / final.name
 

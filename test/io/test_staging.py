@@ -58,3 +58,11 @@ def test_several_outputs_appear_together_or_not_at_all(tmp_path):
         (tmp_path / 'unused').mkdir()
         outputs.path(tmp_path / 'unused' / 'never_written.csv')
     assert _everything(tmp_path) == ['a.json', 'bag', 'unused']
+
+
+def test_an_output_whose_folder_cannot_be_made_is_named(tmp_path):
+    (tmp_path / 'afile').write_text('')
+    with pytest.raises(NotADirectoryError) as caught:
+        with staged(tmp_path / 'afile' / 'bag'):
+            pass
+    assert caught.value.filename == str(tmp_path / 'afile' / 'bag')
