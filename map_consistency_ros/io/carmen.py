@@ -269,6 +269,19 @@ def parse_robotlaser(tokens: list[str], source: str, line: int):
 
 _PARSERS = {'FLASER': parse_flaser, 'ROBOTLASER1': parse_robotlaser}
 
+# The PARAM values the sensor model reads (stated_max_range, sensor_model): name -> (limit,
+# factor to the limit's unit). A value that is no number is not used; an implausible one is
+# damage.
+_NUMERIC_PARAMETERS = {'robot_front_laser_max': (DISTANCE, 1.0),
+                       'laser_front_laser_resolution': (SCAN_ANGLE, math.pi / 180.0)}
+
+
+def _check_parameter(name: str, value: str, source: str, line: int) -> None:
+    if name in _NUMERIC_PARAMETERS and _is_number(value):
+        limit, factor = _NUMERIC_PARAMETERS[name]
+        check_plausible(np.array([float(value) * factor]), limit, source, line,
+                        (f'PARAM {name} (in {limit.unit})',))
+
 
 def read_carmen_log(path: str | Path) -> CarmenLog:
     """Read every FLASER / ROBOTLASER1 record of a CARMEN log.
@@ -301,6 +314,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
                 if not tokens or tokens[0].startswith('#'):
                     continue
                 if tokens[0] == 'PARAM' and len(tokens) >= 3:
+                    _check_parameter(tokens[1], tokens[2], source, line_number)
                     parameters[tokens[1]] = tokens[2]
                     continue
                 parser = _PARSERS.get(tokens[0])

@@ -148,3 +148,16 @@ def test_truncated_gzip(tmp_path, shared_data):
     path.write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match='cannot read|truncated'):
         carmen.read_carmen_log(path)
+
+
+@pytest.mark.parametrize('name, value, message', [
+    ('robot_front_laser_max', '1e300', r'PARAM robot_front_laser_max \(in m\) 1e\+300 is beyond'),
+    ('robot_front_laser_max', 'nan', r'PARAM robot_front_laser_max \(in m\) nan is not finite'),
+    ('laser_front_laser_resolution', 'inf', 'laser_front_laser_resolution .* inf is not finite'),
+])
+def test_implausible_sensor_parameters_are_bad_input(tmp_path, name, value, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(f'PARAM {name} {value} nohost 0\n' + FLASER)
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 1
