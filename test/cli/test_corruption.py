@@ -300,13 +300,26 @@ def test_damaged_gzip_logs(sources, tmp_path, capsys, strict_json, kind, seed):
     assert _check(capsys, strict_json, damaged, tmp_path / 'out', '--every', '4') == 2
 
 
-def test_a_gzip_log_of_implausible_numbers(sources, tmp_path, capsys, strict_json):
-    rng = _rng('gzip numbers', 0)
+def _sensor_parameter(rng: random.Random, data: bytes) -> bytes:
+    """The stated maximum range or resolution (PARAM lines) made implausible."""
+    name = rng.choice((b'robot_front_laser_max', b'laser_front_laser_resolution'))
+    lines = _lines(data)
+    index = next(index for index, line in enumerate(lines) if line.startswith(b'PARAM ' + name))
+    tokens = lines[index].split()
+    tokens[2] = rng.choice(IMPLAUSIBLE).encode()
+    lines[index] = b' '.join(tokens) + b'\n'
+    return b''.join(lines)
+
+
+@pytest.mark.parametrize('field', ['laser record', 'sensor parameter'])
+def test_a_gzip_log_of_implausible_numbers(sources, tmp_path, capsys, strict_json, field):
+    rng = _rng(f'gzip {field}', 0)
     with gzip.open(sources['gzip'], 'rb') as stream:
         text = stream.read()[:400_000]  # the PARAM lines and the first scans
     text = text[:text.rindex(b'\n') + 1]
     damaged = tmp_path / 'damaged.log.gz'
-    damaged.write_bytes(gzip.compress(_laser_field(rng, text, b'FLASER')))
+    damaged.write_bytes(gzip.compress(_laser_field(rng, text, b'FLASER') if field == 'laser record'
+                                      else _sensor_parameter(rng, text)))
     assert _check(capsys, strict_json, damaged, tmp_path / 'out') == 2
 
 
