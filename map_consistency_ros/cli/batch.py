@@ -49,6 +49,7 @@ from map_consistency_ros.core.parameters import specs
 from map_consistency_ros.core.verdict import ExplanationSettings
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.parameter_file import read_parameter_file
+from map_consistency_ros.io.staging import StagedOutputs, staged
 
 # EXIT_INTERNAL_ERROR: a job raised unexpectedly or its worker died: a bug, not the input
 VERDICTS = exit_codes.NAMES
@@ -401,11 +402,10 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
     Parameters
     ----------
-    path: the CSV file; its folder is created.
+    path: the CSV file; its folder is created. Written whole or not at all (io/staging.py).
     rows: the rows of `judge_input`, one CSV row each, columns COLUMNS (None as '').
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, 'w', newline='') as stream:
+    with staged(path) as target, open(target, 'w', newline='') as stream:
         writer = csv.writer(stream)
         writer.writerow(COLUMNS)
         for row in rows:
@@ -443,12 +443,17 @@ def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path
 
     Returns
     -------
-    The path of DIR/index.html.
+    The path of DIR/index.html. Every file appears, or none does (io/staging.py).
     """
+    with StagedOutputs() as outputs:
+        return _write_html(folder, rows, files, outputs)
+
+
+def _write_html(folder: Path, rows: list[dict], files: list[dict | None],
+                outputs: StagedOutputs) -> Path:
     maps = folder / 'maps'
-    maps.mkdir(parents=True, exist_ok=True)
-    write_csv(folder / 'batch.csv', rows)
-    write_table_json(folder / 'batch.json', rows)
+    write_csv(outputs.path(folder / 'batch.csv'), rows)
+    write_table_json(outputs.path(folder / 'batch.json'), rows)
     body = []
     for index, (row, content) in enumerate(zip(rows, files)):
         slug = _slug(index, row['input'])
@@ -456,7 +461,7 @@ def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path
         if content:
             for suffix, key in (('.png', 'figure'), ('.thumb.png', 'thumbnail'),
                                 ('.json', 'report')):
-                (maps / f'{slug}{suffix}').write_bytes(content[key])
+                outputs.path(maps / f'{slug}{suffix}').write_bytes(content[key])
             picture = (f'<a href="maps/{slug}.png"><img src="maps/{slug}.thumb.png" '
                        f'alt="map of {html.escape(row["input"])}"></a>')
             links = f'<a href="maps/{slug}.png">figure</a> <a href="maps/{slug}.json">JSON</a>'
@@ -473,7 +478,8 @@ def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path
         'input', 'kind', 'verdict', 'summary', 'misaligned regions', 'changed places',
         'runtime', 'map', 'files'))
     index = folder / 'index.html'
-    index.write_text(_PAGE.format(count=len(rows), header=header, body='\n'.join(body)))
+    outputs.path(index).write_text(_PAGE.format(count=len(rows), header=header,
+                                                body='\n'.join(body)))
     return index
 
 

@@ -31,6 +31,7 @@ from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.verdict import Assessment, check_map
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import StagedOutputs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -128,8 +129,9 @@ def is_graph(path: Path) -> bool:
 
 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
-                  details: dict, scan_ids: np.ndarray | None = None) -> None:
-    """Write the report, figures and pairs CSV the user asked for.
+                  details: dict, scan_ids: np.ndarray | None = None,
+                  outputs: StagedOutputs | None = None) -> None:
+    """Write the report, figures and pairs CSV the user asked for, all of them or none.
 
     Parameters
     ----------
@@ -139,20 +141,28 @@ def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessme
     assessment: both stages' verdict on `scans`.
     details: the report's fields beside the verdict; its 'source' titles the map figure.
     scan_ids: (S,) names of the scans in the report and the CSV; None: their indices.
+    outputs: the caller's staged outputs, for outputs of its own to appear with these; None:
+        these appear together when all are written, and none of them when one fails
+        (io/staging.py).
     """
+    if outputs is None:
+        with StagedOutputs() as outputs:
+            write_outputs(args, scans, assessment, details, scan_ids, outputs)
+        return
     if args.plot or args.explain:
         # matplotlib costs half a second of start-up: only the runs that draw pay it.
         from map_consistency_ros.cli import plots
     if args.report:
         write = report.assessment_report(assessment, scan_ids)
         write.update(details)
-        report.write_json(args.report, write)
+        report.write_json(outputs.path(args.report), write)
     if args.plot:
-        plots.save_map_figure(args.plot, scans, assessment, title=str(details.get('source', '')))
+        plots.save_map_figure(outputs.path(args.plot), scans, assessment,
+                              title=str(details.get('source', '')))
     if args.pairs_csv:
-        report.write_pairs_csv(args.pairs_csv, assessment.result, scan_ids)
+        report.write_pairs_csv(outputs.path(args.pairs_csv), assessment.result, scan_ids)
     if args.explain:
-        plots.save_pairs_figure(args.explain, scans, assessment.result)
+        plots.save_pairs_figure(outputs.path(args.explain), scans, assessment.result)
 
 
 def verdict_settings(args: argparse.Namespace):

@@ -39,6 +39,7 @@ from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.io import carmen, g2o
 from map_consistency_ros.io.bags import STORAGES, BagTopics, BagWriter
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.limits import DISTANCE, STAMP, implausible
 
 # Log-time offsets after a scan so that a subscriber has the scan before the pose naming it.
 _CONSTRAINTS_DELAY = 1e-6
@@ -131,9 +132,15 @@ def record_stamps(log: carmen.CarmenLog, count: int, rate: float | None = None,
     Returns
     -------
     (count,) stamps in seconds, and how many records were restamped (0 with a `rate`).
+    InputError for a `rate` so low that the stamps go beyond what a ROS Time carries.
     """
     if rate is not None:
-        return np.arange(count) / rate, 0
+        stamps = np.arange(count) / rate
+        problem = implausible(stamps, STAMP)
+        if problem is not None:
+            raise InputError('options', f'--rate {rate!r} stamps record {problem[0]} at '
+                                        f'{problem[1]}')
+        return stamps, 0
     stamps = log.timestamps[:count].astype(np.float64)
     backwards = np.flatnonzero(np.diff(stamps) <= 0) + 1
     if backwards.size and not fix:
@@ -254,8 +261,9 @@ def check_options(args: argparse.Namespace) -> None:
         (args.rate is None or args.rate > 0, f'--rate must be positive, got {args.rate}'),
         (all(sigma > 0 for sigma in args.odometry_sigmas),
          f'--odometry-sigmas must be 3 positive numbers, got {args.odometry_sigmas}'),
-        (args.range_max is None or args.range_max > 0,
-         f'--range-max must be positive, got {args.range_max}'),
+        (args.range_max is None or 0 < args.range_max <= DISTANCE.bound,
+         f'--range-max must be positive and at most {DISTANCE.bound:g} m, got '
+         f'{args.range_max}'),
     )
     for valid, message in checks:
         if not valid:

@@ -41,6 +41,7 @@ from map_consistency_ros.evaluation import density, metrics, real_slam, runner, 
 from map_consistency_ros.evaluation.suite import (CORRECTED_LOGS, SuiteMap, SuiteParameters,
                                                   build_suite)
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import staged
 
 # Table I of the paper (i7-3770K, 8 threads): N, R, K, seconds
 PAPER_RUNTIMES = {
@@ -608,8 +609,8 @@ def write_doc(args: argparse.Namespace, maps: list[SuiteMap], measured: list[run
             *_runtime_lines(runtimes),
             '',
         ]
-    args.doc.parent.mkdir(parents=True, exist_ok=True)
-    args.doc.write_text('\n'.join(lines))
+    with staged(args.doc) as target:
+        target.write_text('\n'.join(lines))
 
 
 _OTHER_SUITES = ('Two more suites have pages of their own: the same maps at several sampling '
@@ -662,8 +663,8 @@ def run_real_slam(args: argparse.Namespace) -> int:
              f'({_commit()[:12]}); the maps, their labels and how they were made: '
              '[`data/real_slam/README.md`](../data/real_slam/README.md)._', '',
              *real_slam.table(rows, truth), '']
-    doc.parent.mkdir(parents=True, exist_ok=True)
-    doc.write_text('\n'.join(lines))
+    with staged(doc) as target:
+        target.write_text('\n'.join(lines))
     report.write_json(doc.parent / 'figures' / 'real_slam.json', {'maps': rows})
     print('\n'.join(lines))
     return 0

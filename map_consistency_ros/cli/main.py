@@ -134,11 +134,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except InputError as error:
-        print(f'map-consistency {args.command}: {error}', file=sys.stderr)
+        # one line, whatever a library put in the message: a pipeline greps it
+        print(f'map-consistency {args.command}: {_one_line(error)}', file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as error:
-        print(f'map-consistency {args.command}: {error.filename or ""}: {error.strerror or error}',
-              file=sys.stderr)
+        print(f'map-consistency {args.command}: {error.filename or ""}: '
+              f'{_one_line(error.strerror or error)}', file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)

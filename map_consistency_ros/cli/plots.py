@@ -14,6 +14,7 @@ from map_consistency_ros.core.consistency import ConsistencyResult, statistics  
 from map_consistency_ros.core.geometry import ScanSet, point_distances  # noqa: E402
 from map_consistency_ros.core.verdict import (  # noqa: E402
     Assessment, misaligned_endpoints)
+from map_consistency_ros.io.staging import staged  # noqa: E402
 
 # An end point counts as visibly inconsistent this many pair scales inside the other polygon.
 _HIGHLIGHT_SCALES = 3.0
@@ -212,10 +213,12 @@ def save_figure(figure, path: str | Path) -> None:
     Parameters
     ----------
     figure: the matplotlib figure.
-    path: the image file (PNG by its suffix); its folder is created.
+    path: the image file (PNG by its suffix); its folder is created. Written whole or not at
+        all (io/staging.py).
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.tight_layout()
-    figure.savefig(path, dpi=150)
-    plt.close(figure)
+    try:
+        figure.tight_layout()
+        with staged(path) as target:
+            figure.savefig(target, dpi=150)
+    finally:
+        plt.close(figure)

@@ -59,6 +59,7 @@ from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.messages import (NEW_NODE_EVENT_TYPE, PATH_TYPE, POSE_SOURCE_TYPES,
                                              time_message)
 from map_consistency_ros.io.parameter_file import read_parameter_file
+from map_consistency_ros.io.staging import StagedOutputs
 
 _SHOWN_WARNINGS = 5
 _PUBLISH_DEPTH = 1000  # deep enough that a paced burst (a Path after its scan) is not dropped
@@ -660,9 +661,12 @@ def replay_and_report(args: argparse.Namespace,
     """
     judgement = judge(args, values)
     print(judgement.summary)
-    check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details)
-    if args.stats_plot:
-        plots.save_statistics_figure(args.stats_plot, judgement.snapshot.result)
+    with StagedOutputs() as outputs:  # every output, or none
+        check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
+                            outputs=outputs)
+        if args.stats_plot:
+            plots.save_statistics_figure(outputs.path(args.stats_plot),
+                                         judgement.snapshot.result)
     for label, path in (('report', args.report), ('figure', args.plot),
                         ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
                         ('failed pairs figure', args.explain)):

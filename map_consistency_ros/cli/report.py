@@ -9,6 +9,7 @@ import numpy as np
 from map_consistency_ros.core.consistency import ConsistencyResult
 from map_consistency_ros.core.verdict import (Assessment, assessment_report, result_report,
                                               scan_names, to_json)
+from map_consistency_ros.io.staging import staged
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
            'format_summary', 'region_text']
@@ -20,12 +21,12 @@ def write_json(path: str | Path, report: dict) -> None:
 
     Parameters
     ----------
-    path: the JSON file; its folder is created.
+    path: the JSON file; its folder is created. Written whole or not at all (io/staging.py).
     report: the report: dicts, lists, numbers, strings and numpy values.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(to_json(report, indent=2) + '\n')
+    text = to_json(report, indent=2) + '\n'
+    with staged(path) as target:
+        target.write_text(text)
 
 
 def write_pairs_csv(path: str | Path, result: ConsistencyResult,
@@ -35,16 +36,14 @@ def write_pairs_csv(path: str | Path, result: ConsistencyResult,
 
     Parameters
     ----------
-    path: the CSV file; its folder is created.
+    path: the CSV file; its folder is created. Written whole or not at all (io/staging.py).
     result: the consistency result.
     scan_ids: (S,) names of the scans for i and j (record positions, stamps); None: their
         indices.
     """
     ids = scan_names(result, scan_ids)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     overlapping = np.flatnonzero(result.point_count > 0)
-    with open(path, 'w', newline='') as stream:
+    with staged(path) as target, open(target, 'w', newline='') as stream:
         writer = csv.writer(stream)
         writer.writerow(['i', 'j', 'M_ij', 'n_ij', 'psi_ij', 'failed'])
         for index in overlapping:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import lzma
 import math
+import re
 import struct
 import zlib
 from collections.abc import Iterator, Sequence
@@ -23,6 +24,7 @@ import numpy as np
 from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.core.live import Record
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import StagedOutputs
 from map_consistency_ros.io.messages import (CDR_RECORDS, CONSTRAINTS_TYPE,
                                              LOOP_CLOSURE_EVENT_TYPE, MARKER_ARRAY_TYPE,
                                              NEW_NODE_EVENT_TYPE, PATH_TYPE, PathReader,
@@ -116,7 +118,7 @@ class BagReader:
             reader = AnyReader(self.paths, default_typestore=typestore)
             reader.open()
         except _bag_errors() as error:
-            raise InputError(self.source, f'not a readable ROS bag ({_describe(error)})') from None
+            raise _unreadable(self.source, error) from None
         self._reader = reader
         try:
             self._check_topics()
@@ -357,8 +359,30 @@ class BagReader:
 
 
 def _describe(error: BaseException) -> str:
-    text = str(error).strip()
+    """The error in one line: a multi-line message (a YAML parser's, with the offending
+    source quoted) keeps its unindented lines."""
+    lines = [line.strip() for line in str(error).splitlines()
+             if line.strip() and not line[0].isspace()]
+    text = '; '.join(lines)
     return f'{type(error).__name__}: {text}' if text else type(error).__name__
+
+
+# rosbags' words for a metadata.yaml its YAML parser refused, and the parser's position marks
+_BAD_YAML = re.compile(r'Could not load YAML from (?P<path>.+?): (?P<problem>.*)', re.DOTALL)
+_YAML_MARK = re.compile(r'line (\d+), column')
+
+
+def _unreadable(source: str, error: BaseException) -> InputError:
+    """The InputError of a bag rosbags cannot open: a malformed metadata.yaml is named with
+    the line of the problem, anything else as an unreadable bag."""
+    match = _BAD_YAML.match(str(error).strip())
+    if match is None:
+        return InputError(source, f'not a readable ROS bag ({_describe(error)})')
+    marks = _YAML_MARK.findall(match['problem'])
+    problem = '; '.join(line.strip() for line in match['problem'].splitlines()
+                        if line.strip() and not line[0].isspace())
+    return InputError(match['path'], f'malformed YAML in the bag\'s metadata ({problem})',
+                      int(marks[-1]) if marks else None)
 
 
 # -- writing ---------------------------------------------------------------------------------
@@ -369,7 +393,8 @@ class BagWriter:
 
     Use as a context manager; `path` must not exist. Each write takes its log time in seconds
     (the time the message would have been published). `compress` turns on zstd chunk
-    compression (mcap only).
+    compression (mcap only). The bag is written beside `path` and appears there whole when the
+    `with` block ends normally; when it raises, nothing is left (io/staging.py).
     """
 
     def __init__(self, path: str | Path, storage: str = 'mcap', compress: bool = False,
@@ -383,6 +408,7 @@ class BagWriter:
         self.compress = compress
         self.topics = topics
         self._writer = None
+        self._outputs: StagedOutputs | None = None
         self._connections: dict[str, object] = {}
 
     def __enter__(self) -> BagWriter:
@@ -394,10 +420,15 @@ class BagWriter:
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         register_slam_toolbox_types(self.typestore)
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
-        writer = Writer(self.path, version=9, storage_plugin=plugin)
-        if self.compress:
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        writer.open()
+        self._outputs = StagedOutputs()
+        try:
+            writer = Writer(self._outputs.path(self.path), version=9, storage_plugin=plugin)
+            if self.compress:
+                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            writer.open()
+        except BaseException:
+            self._outputs.discard()
+            raise
         self._writer = writer
         for topic, msgtype in ((self.topics.scan, SCAN_TYPE),
                                (self.topics.constraints, CONSTRAINTS_TYPE)):
@@ -405,10 +436,20 @@ class BagWriter:
                                                                typestore=self.typestore)
         return self
 
-    def __exit__(self, *exc_info) -> None:
-        if self._writer is not None:
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        if self._writer is None:
+            return
+        try:
             self._writer.close()
+        except BaseException:
+            self._outputs.discard()
+            raise
+        finally:
             self._writer = None
+        if exc_type is None:
+            self._outputs.commit()
+        else:
+            self._outputs.discard()
 
     def _write(self, msgtype: str, time: float, message) -> None:
         if msgtype not in self._connections:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import gzip
 import math
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,7 @@ import numpy as np
 
 from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.limits import DISTANCE, HEADING, SCAN_ANGLE, STAMP, Limit, implausible
 
 DEFAULT_FOV = math.pi
 # The original implementation's usable range: readings beyond it count as free space.
@@ -63,6 +65,11 @@ class CarmenLog:
         return int(self.ranges.shape[1])
 
 
+# What reading a damaged file raises: a cut gzip stream EOFError, a bad CRC OSError, a garbled
+# deflate stream zlib.error.
+READ_ERRORS = (OSError, EOFError, UnicodeError, zlib.error)
+
+
 def open_text(path: Path):
     """A text stream of a plain or gzip-compressed file (told apart by its magic bytes).
 
@@ -73,7 +80,7 @@ def open_text(path: Path):
     Returns
     -------
     An open UTF-8 text stream (undecodable bytes replaced), for the caller to close; OSError
-    when the file cannot be opened.
+    when the file cannot be opened. Reading it raises one of READ_ERRORS for a damaged file.
     """
     with open(path, 'rb') as probe:
         gzipped = probe.read(2) == b'\x1f\x8b'
@@ -103,6 +110,79 @@ def parse_floats(tokens: list[str], source: str, line: int, what: str) -> np.nda
         bad = next(token for token in tokens if not _is_number(token))
         raise InputError(source, f'non-numeric {what} {bad!r}', line) from None
     return values
+
+
+def check_plausible(values: np.ndarray, limit: Limit, source: str, lines,
+                    names: tuple[str, ...] | str) -> None:
+    """Refuse values outside their plausible range (io/limits.py).
+
+    Parameters
+    ----------
+    values: the values of one record (W,), or of N records (N, W), checked at once.
+    limit: their plausible range.
+    source: the file name, for the error message.
+    lines: the 1-based line of the record, or (N,) of each record, for the error message.
+    names: the name of each of the W values, or one word for all of them (then numbered
+        from 1).
+
+    Returns
+    -------
+    None. Raises InputError naming the first implausible value, the file and its line.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    problem = implausible(values, limit)
+    if problem is None:
+        return
+    index, reason = problem
+    width = values.shape[-1] if values.ndim else 1
+    row, column = divmod(index, width)
+    name = names[column] if isinstance(names, tuple) else f'{names} {column + 1}'
+    line = int(np.asarray(lines).reshape(-1)[row]) if np.ndim(lines) else int(lines)
+    raise InputError(source, f'{name} {reason}', line)
+
+
+_POSE_NAMES = ('x', 'y', 'theta')
+
+
+def check_poses(poses: np.ndarray, source: str, lines, what: str) -> None:
+    """Refuse poses whose position or heading is implausible (io/limits.py).
+
+    Parameters
+    ----------
+    poses: (3,) or (N, 3) x, y in metres, heading in radians.
+    source: the file name, for the error message.
+    lines: the 1-based line of the pose, or (N,) of each, for the error message.
+    what: whose poses they are ('laser pose', 'vertex pose', ...), for the error message.
+
+    Returns
+    -------
+    None. Raises InputError naming the value, the file and the line.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    check_plausible(poses[..., :2], DISTANCE, source, lines,
+                    tuple(f'{what} {name}' for name in _POSE_NAMES[:2]))
+    check_plausible(poses[..., 2:], HEADING, source, lines, (f'{what} {_POSE_NAMES[2]}',))
+
+
+def check_laser_records(log: CarmenLog) -> None:
+    """Refuse laser records whose ranges, poses or logger timestamps are implausible.
+
+    A text log writes a beam without return as the maximum reading: a non-finite range is
+    damage, unlike in a LaserScan.
+
+    Parameters
+    ----------
+    log: the records as read, with the line of each.
+
+    Returns
+    -------
+    None. Raises InputError naming the first implausible value, the file and its line.
+    """
+    lines = log.line_numbers
+    check_plausible(log.ranges, DISTANCE, log.path, lines, 'range')
+    check_poses(log.laser_poses, log.path, lines, 'laser pose')
+    check_poses(log.robot_poses, log.path, lines, 'robot pose')
+    check_plausible(log.timestamps[:, None], STAMP, log.path, lines, ('logger timestamp',))
 
 
 def _is_number(token: str) -> bool:
@@ -142,7 +222,7 @@ def parse_flaser(tokens: list[str], source: str, line: int):
     -------
     (ranges (K,), laser pose (3,), robot pose (3,), logger timestamp, None); the last is the
     LaserAngles slot, which FLASER records leave empty. Raises InputError for a truncated
-    record, a bad beam count or a non-numeric field.
+    record, a bad beam count or a non-numeric field (`check_laser_records` checks the values).
     """
     _need(tokens, 2, source, line, 'FLASER')
     beams = _count(tokens[1], source, line, 'FLASER beam count')
@@ -167,7 +247,8 @@ def parse_robotlaser(tokens: list[str], source: str, line: int):
     -------
     (ranges (K,), laser pose (3,), robot pose (3,), logger timestamp, LaserAngles); the
     remissions are skipped. Raises InputError for a truncated record, a bad beam or remission
-    count or a non-numeric field.
+    count, a non-numeric field or a laser parameter outside its plausible range (io/limits.py;
+    `check_laser_records` checks the other values).
     """
     _need(tokens, _ROBOTLASER_HEAD + 1, source, line, 'ROBOTLASER1')
     head = parse_floats(tokens[2:7], source, line, 'laser parameter')
@@ -179,11 +260,27 @@ def parse_robotlaser(tokens: list[str], source: str, line: int):
     _need(tokens, 10 + beams + remissions + 14, source, line, 'ROBOTLASER1')
     poses = parse_floats(rest[0:6], source, line, 'pose value')
     timestamp = parse_floats([rest[13]], source, line, 'timestamp')[0]
+    check_plausible(head[0:3], SCAN_ANGLE, source, line, ('start angle', 'field of view',
+                                                          'angular resolution'))
+    check_plausible(head[3:4], DISTANCE, source, line, ('maximum range',))
     angles = LaserAngles(start_angle=head[0], fov=head[1], resolution=head[2], max_range=head[3])
     return ranges, poses[0:3], poses[3:6], timestamp, angles
 
 
 _PARSERS = {'FLASER': parse_flaser, 'ROBOTLASER1': parse_robotlaser}
+
+# The PARAM values the sensor model reads (stated_max_range, sensor_model): name -> (limit,
+# factor to the limit's unit). A value that is no number is not used; an implausible one is
+# damage.
+_NUMERIC_PARAMETERS = {'robot_front_laser_max': (DISTANCE, 1.0),
+                       'laser_front_laser_resolution': (SCAN_ANGLE, math.pi / 180.0)}
+
+
+def _check_parameter(name: str, value: str, source: str, line: int) -> None:
+    if name in _NUMERIC_PARAMETERS and _is_number(value):
+        limit, factor = _NUMERIC_PARAMETERS[name]
+        check_plausible(np.array([float(value) * factor]), limit, source, line,
+                        (f'PARAM {name} (in {limit.unit})',))
 
 
 def read_carmen_log(path: str | Path) -> CarmenLog:
@@ -199,7 +296,9 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
     A CarmenLog of the N laser records in file order; `stated_angles` comes from the first
     ROBOTLASER1 record (None for a FLASER-only log). Raises InputError naming the file and line
     for a missing or unreadable file, a truncated or non-numeric record, records with differing
-    beam counts, a non-finite laser pose, or a log without laser records.
+    beam counts, a number outside its plausible range (io/limits.py: ranges and positions
+    within 1e6 m, headings within 1e3 rad, timestamps in [0, 2**31) s), or a log without laser
+    records.
     """
     path = Path(path)
     source = str(path)
@@ -215,6 +314,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
                 if not tokens or tokens[0].startswith('#'):
                     continue
                 if tokens[0] == 'PARAM' and len(tokens) >= 3:
+                    _check_parameter(tokens[1], tokens[2], source, line_number)
                     parameters[tokens[1]] = tokens[2]
                     continue
                 parser = _PARSERS.get(tokens[0])
@@ -230,17 +330,15 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
                 robot_poses.append(robot_pose)
                 timestamps.append(stamp)
                 lines.append(line_number)
-    except (OSError, EOFError, UnicodeError) as error:
+    except READ_ERRORS as error:
         raise InputError(source, f'cannot read the file ({error})') from None
     if not ranges:
         raise InputError(source, 'no FLASER or ROBOTLASER1 laser records found')
-    poses = np.array(laser_poses)
-    if not np.all(np.isfinite(poses)):
-        bad = int(np.flatnonzero(~np.all(np.isfinite(poses), axis=1))[0])
-        raise InputError(source, 'laser pose is not finite', lines[bad])
-    return CarmenLog(path=source, ranges=np.array(ranges), laser_poses=poses,
-                     robot_poses=np.array(robot_poses), timestamps=np.array(timestamps),
-                     line_numbers=np.array(lines), stated_angles=stated, parameters=parameters)
+    log = CarmenLog(path=source, ranges=np.array(ranges), laser_poses=np.array(laser_poses),
+                    robot_poses=np.array(robot_poses), timestamps=np.array(timestamps),
+                    line_numbers=np.array(lines), stated_angles=stated, parameters=parameters)
+    check_laser_records(log)
+    return log
 
 
 def stated_max_range(log: CarmenLog) -> float | None:

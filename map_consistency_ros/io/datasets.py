@@ -25,9 +25,11 @@ from rosbags.highlevel import AnyReader
 
 from map_consistency_ros.core.backend import PoseGraph
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.io.carmen import CarmenLog, LaserAngles, read_carmen_log, sensor_model
+from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, check_plausible,
+                                           read_carmen_log, sensor_model)
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph
+from map_consistency_ros.io.limits import DISTANCE, HEADING, STAMP
 from map_consistency_ros.io.messages import stamp_to_seconds
 
 
@@ -185,14 +187,15 @@ def read_relations(path: str | Path) -> np.ndarray:
     Returns
     -------
     (R, 5) rows `t1 t2 x y yaw` (stamps in seconds, the planar part of each relation). Raises
-    InputError for a missing file, a line without 8 fields or with a non-numeric or
-    non-finite one (naming the line), or a file without relations.
+    InputError for a missing file, a line without 8 fields or with a non-numeric one, a
+    number outside its plausible range (io/limits.py; naming the line), or a file without
+    relations.
     """
     path = Path(path)
     source = str(path)
     if not path.is_file():
         raise InputError(source, 'no such file')
-    rows = []
+    rows, lines = [], []
     with open(path, encoding='utf-8', errors='replace') as stream:
         for line_number, text in enumerate(stream, start=1):
             tokens = text.split()
@@ -202,15 +205,19 @@ def read_relations(path: str | Path) -> np.ndarray:
                 raise InputError(source, f'a relation has 8 fields (t1 t2 x y z roll pitch yaw), '
                                          f'got {len(tokens)}', line_number)
             try:
-                values = [float(token) for token in tokens]
+                rows.append([float(token) for token in tokens])
             except ValueError:
                 raise InputError(source, 'non-numeric relation field', line_number) from None
-            if not np.all(np.isfinite(values)):
-                raise InputError(source, 'relation field is not finite', line_number)
-            rows.append([values[0], values[1], values[2], values[3], values[7]])
+            lines.append(line_number)
     if not rows:
         raise InputError(source, 'no relations found')
-    return np.array(rows)
+    values = np.array(rows)
+    check_plausible(values[:, 0:2], STAMP, source, lines, ('relation t1', 'relation t2'))
+    check_plausible(values[:, 2:5], DISTANCE, source, lines,
+                    ('relation x', 'relation y', 'relation z'))
+    check_plausible(values[:, 5:8], HEADING, source, lines,
+                    ('relation roll', 'relation pitch', 'relation yaw'))
+    return values[:, [0, 1, 2, 3, 7]]
 
 
 def read_raw_bag(path: str | Path) -> RawBag:

@@ -20,9 +20,11 @@ import numpy as np
 
 from map_consistency_ros.core.backend import PoseGraph, information_from_upper, information_upper
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, open_text, parse_floats,
-                                           parse_robotlaser)
+from map_consistency_ros.io.carmen import (READ_ERRORS, CarmenLog, LaserAngles,
+                                           check_laser_records, check_poses, open_text,
+                                           parse_floats, parse_robotlaser)
 from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.staging import staged
 
 _LASER_OFFSET_TOLERANCE = 1e-6
 
@@ -85,8 +87,9 @@ def read_g2o(path: str | Path) -> G2oGraph:
     -------
     A G2oGraph: vertices re-indexed 0..N-1 in increasing id order, `vertex_ids (N,)` the file's
     ids, and the ROBOTLASER1 scans (None when there are none). Raises InputError naming the file
-    and line for a missing or unreadable file, a malformed, non-numeric or non-finite record, an
-    unsupported record type, a duplicate or unknown vertex id, an edge from a vertex to itself,
+    and line for a missing or unreadable file, a malformed, non-numeric or non-finite record, a
+    vertex pose or laser value outside its plausible range (io/limits.py), an unsupported
+    record type, a duplicate or unknown vertex id, an edge from a vertex to itself,
     an information matrix that is not positive definite, a ROBOTLASER1 line before any vertex,
     scans with differing beam counts, or a file without vertices.
     """
@@ -101,7 +104,7 @@ def read_g2o(path: str | Path) -> G2oGraph:
                 tokens = text.split()
                 if tokens and not tokens[0].startswith('#'):
                     reader.record(tokens, line_number)
-    except (OSError, EOFError, UnicodeError) as error:
+    except READ_ERRORS as error:
         raise InputError(source, f'cannot read the file ({error})') from None
     return reader.result()
 
@@ -114,7 +117,8 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
 
     Parameters
     ----------
-    path: the file to write (plain text; replaced if it exists).
+    path: the file to write (plain text; replaced if it exists), whole or not at all
+        (io/staging.py).
     content: the graph, its vertex ids (written in place of the indices) and optional scans;
         the scans must share one laser offset (`G2oGraph.laser_offset`, else InputError).
     """
@@ -136,7 +140,8 @@ def write_g2o(path: str | Path, content: G2oGraph) -> None:
     for a, b, measurement, info in zip(ids[graph.edge_from], ids[graph.edge_to],
                                        graph.measurements, upper):
         lines.append(f'EDGE_SE2 {a} {b} {_numbers(measurement)} {_numbers(info)}')
-    Path(path).write_text('\n'.join(lines) + '\n')
+    with staged(path) as target:
+        target.write_text('\n'.join(lines) + '\n')
 
 
 def _numbers(values: np.ndarray) -> str:
@@ -171,7 +176,8 @@ class _Reader:
             vertex = self._id(tokens[1], line)
             if vertex in self.vertices:
                 raise InputError(self.source, f'vertex {vertex} defined twice', line)
-            self.vertices[vertex] = (self._finite(tokens[2:5], line, 'pose value'), line)
+            self.vertices[vertex] = (parse_floats(tokens[2:5], self.source, line, 'pose value'),
+                                     line)
             self.last_vertex = vertex
         elif tag == 'EDGE_SE2':
             self._expect(tokens, 12, line)
@@ -195,6 +201,8 @@ class _Reader:
         ids = np.array(sorted(self.vertices), dtype=np.int64)
         index = {vertex: position for position, vertex in enumerate(ids)}
         poses = np.array([self.vertices[vertex][0] for vertex in ids])
+        check_poses(poses, self.source, [self.vertices[vertex][1] for vertex in ids],
+                    'vertex pose')
         fixed = np.zeros(len(ids), dtype=bool)
         for vertex, line in self.fixed:
             fixed[self._index(index, vertex, line)] = True
@@ -228,6 +236,7 @@ class _Reader:
                         timestamps=np.array([s[1][3] for s in self.scans]),
                         line_numbers=np.array([s[2] for s in self.scans]),
                         stated_angles=angles, parameters={})
+        check_laser_records(log)
         return log, np.array([index[vertex] for vertex, _, _ in self.scans], dtype=np.int64)
 
     def _check_information(self, information: np.ndarray) -> None:

@@ -23,6 +23,7 @@ from map_consistency_ros.core.geometry import SensorModel, se2
 from map_consistency_ros.core.live import (Constraints, GraphSnapshot, KeyframeEstimate,
                                            LoopClosure, NodeEvent, PoseGraphNodes, PoseSample,
                                            Record, Scan)
+from map_consistency_ros.io.limits import DISTANCE, SCAN_ANGLE, STAMP, implausible
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 PATH_TYPE = 'nav_msgs/msg/Path'
@@ -75,7 +76,8 @@ def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, 
     """The stamp, ranges and beam geometry of a LaserScan.
 
     The usable range is the smaller of the scan's `range_max` and `max_range` (beams beyond it
-    count as free space). NaN / inf ranges are kept.
+    count as free space); a range_max of +inf states no maximum. NaN / inf ranges are kept:
+    they are beams without a return.
 
     Parameters
     ----------
@@ -85,31 +87,61 @@ def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, 
     Returns
     -------
     (header stamp in seconds, ranges (K,) float64 metres, SensorModel); the model's range_min
-    is the scan's when finite and positive, else 0. Raises ValueError for fewer than 2 ranges,
-    non-finite angle fields or a non-positive angle_increment, angle fields that disagree with
-    the number of ranges by more than one beam (drivers differ on whether angle_max is
-    inclusive), or a geometry SensorModel rejects.
+    is the scan's when finite and positive, else 0. Raises ValueError, naming the stamp, for
+    fewer than 2 ranges, a negative stamp, angle fields that are not finite or beyond two
+    turns, a non-positive angle_increment, a range_max that is NaN, negative or beyond 1e6 m
+    (io/limits.py), angle fields that disagree with the number of ranges by more than one
+    beam (drivers differ on whether angle_max is inclusive), or a geometry SensorModel
+    rejects.
     """
+    stamp = stamp_to_seconds(msg.header.stamp)
+    where = f'scan stamped {stamp!r} s'
     ranges = np.asarray(msg.ranges, dtype=np.float64)
     beams = ranges.size
     if beams < 2:
-        raise ValueError(f'scan has {beams} ranges; at least 2 are needed')
+        raise ValueError(f'{where} has {beams} ranges; at least 2 are needed')
     angle_min, angle_max, increment = msg.angle_min, msg.angle_max, msg.angle_increment
-    if not all(math.isfinite(v) for v in (angle_min, angle_max, increment)) or increment <= 0.0:
-        raise ValueError(f'scan angle fields are unusable: angle_min={angle_min}, '
+    range_max = msg.range_max
+    check_fields(where, (('header stamp', stamp, STAMP), ('angle_min', angle_min, SCAN_ANGLE),
+                         ('angle_increment', increment, SCAN_ANGLE),
+                         ('angle_max', angle_max, SCAN_ANGLE),
+                         # +inf: no maximum stated (the usable range caps it)
+                         ('range_max', 0.0 if range_max == math.inf else range_max, DISTANCE)))
+    if increment <= 0.0:
+        raise ValueError(f'{where}: scan angle fields are unusable: angle_min={angle_min}, '
                          f'angle_max={angle_max}, angle_increment={increment}')
     implied = (angle_max - angle_min) / increment + 1.0
     if abs(implied - beams) > 1.0 + 1e-6:
-        raise ValueError(f'scan angles imply {implied:.1f} beams but it has {beams} ranges '
-                         f'(angle_min={angle_min}, angle_max={angle_max}, '
+        raise ValueError(f'{where}: scan angles imply {implied:.1f} beams but it has {beams} '
+                         f'ranges (angle_min={angle_min}, angle_max={angle_max}, '
                          f'angle_increment={increment})')
-    usable = min(msg.range_max, max_range) if math.isfinite(msg.range_max) else max_range
+    usable = min(range_max, max_range) if math.isfinite(range_max) else max_range
     range_min = msg.range_min if math.isfinite(msg.range_min) and msg.range_min > 0.0 else 0.0
-    model = SensorModel(angle_min=angle_min, angle_increment=increment, max_range=usable,
-                        range_min=range_min)
-    model.check_beam_count(beams)
-    stamp = stamp_to_seconds(msg.header.stamp)
+    try:
+        model = SensorModel(angle_min=angle_min, angle_increment=increment, max_range=usable,
+                            range_min=range_min)
+        model.check_beam_count(beams)
+    except ValueError as error:
+        raise ValueError(f'{where}: {error}') from None
     return stamp, ranges, model
+
+
+def check_fields(where: str, fields) -> None:
+    """Refuse message fields outside their plausible range (io/limits.py).
+
+    Parameters
+    ----------
+    where: the message, e.g. 'scan stamped 12.5 s', the start of the error message.
+    fields: (name, value, Limit) of each field.
+
+    Returns
+    -------
+    None. Raises ValueError naming the message and the first implausible field.
+    """
+    for name, value, limit in fields:
+        problem = implausible(value, limit)
+        if problem is not None:
+            raise ValueError(f'{where}: {name} {problem[1]}')
 
 
 def pose_to_numpy(pose) -> np.ndarray:
@@ -710,7 +742,9 @@ def to_record(msgtype: str, msg, max_range: float = math.inf) -> Record:
         return LoopClosure(stamp=stamp_to_seconds(msg.stamp))
     if msgtype in SINGLE_POSE_TYPES:
         pose = msg.pose if msgtype == POSE_STAMPED_TYPE else msg.pose.pose
-        return PoseSample(stamp=stamp_to_seconds(msg.header.stamp), pose=pose_to_numpy(pose),
+        stamp = stamp_to_seconds(msg.header.stamp)
+        check_fields(f'pose stamped {stamp!r} s', (('header stamp', stamp, STAMP),))
+        return PoseSample(stamp=stamp, pose=pose_to_numpy(pose),
                           frame_id=msg.header.frame_id,
                           child_frame_id=getattr(msg, 'child_frame_id', ''))
     raise ValueError(f'no input record for messages of type {msgtype}')

@@ -83,6 +83,17 @@ def test_bad_logs_exit_2_with_one_line(tmp_path, capsys, content, message):
     assert message in err and len(err.splitlines()) == 1
 
 
+def test_outputs_appear_all_or_none(room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    out = tmp_path / 'out'
+    (out / 'map.png').mkdir(parents=True)  # the figure cannot be written: a folder is there
+    assert main(['check', str(path), '--quiet', '--report', str(out / 'r.json'), '--plot',
+                 str(out / 'map.png'), '--pairs-csv', str(out / 'new' / 'pairs.csv')]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert str(out / 'map.png') in line
+    assert sorted(p.name for p in out.rglob('*')) == ['map.png']  # no report, no new folder
+
+
 def test_missing_file_and_bad_option_exit_2(tmp_path, room_log, capsys):
     assert main(['check', str(tmp_path / 'absent.log')]) == 2
     assert 'absent.log: no such file' in capsys.readouterr().err

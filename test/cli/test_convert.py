@@ -126,6 +126,8 @@ def test_rate_for_logs_without_timestamps(shared_data, tmp_path, capsys):
     (['--odometry-sigmas', '0', '1', '1'], '--odometry-sigmas must be 3 positive'),
     (['--storage', 'sqlite3', '--compress'], 'mcap storage only'),
     (['--range-max', '-1'], '--range-max must be positive'),
+    (['--range-max', '1e300'], '--range-max must be positive and at most 1e+06 m'),
+    (['--rate', '1e-300'], '--rate 1e-300 stamps record 1 at 9.99'),
 ])
 def test_bad_options(intel_log, tmp_path, capsys, arguments, message):
     assert main(['convert', str(intel_log), str(tmp_path / 'out'), '--quiet',
@@ -144,6 +146,36 @@ def test_bad_inputs(intel_log, tmp_path, capsys):
     empty.write_text('PARAM robot_front_laser_max 30 nohost 0\n')
     assert main(['convert', str(empty), str(tmp_path / 'b'), '--quiet']) == 2
     assert 'no FLASER or ROBOTLASER1' in capsys.readouterr().err
+
+
+def test_a_conversion_failing_midway_leaves_no_bag(intel_log, tmp_path, monkeypatch, capsys):
+    from map_consistency_ros.io.bags import BagWriter
+    written = []
+
+    def failing(self, *args, **kwargs):
+        written.append(1)
+        if len(written) == 20:
+            raise OSError(28, 'No space left on device', 'disk')
+
+    monkeypatch.setattr(BagWriter, 'write_trajectory', failing)
+    output = tmp_path / 'new' / 'folders' / 'bag'
+    assert main(['convert', str(intel_log), str(output), '--quiet', '--limit', '40']) == 2
+    assert 'No space left on device' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # neither the bag nor the folders made for it
+
+
+def test_a_log_with_a_nan_timestamp_is_refused_before_any_bag(intel_log, tmp_path, capsys):
+    lines = intel_log.read_text().splitlines(keepends=True)[:2000]
+    flaser = [index for index, line in enumerate(lines) if line.startswith('FLASER')]
+    tokens = lines[flaser[10]].split()
+    tokens[-1] = 'nan'
+    lines[flaser[10]] = ' '.join(tokens) + '\n'
+    damaged = tmp_path / 'nan_stamp.log'
+    damaged.write_text(''.join(lines))
+    assert main(['convert', str(damaged), str(tmp_path / 'bag'), '--quiet']) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.endswith(f'{damaged}:{flaser[10] + 1}: logger timestamp nan is not finite')
+    assert not (tmp_path / 'bag').exists()
 
 
 GRAPH_SCANS = 30

@@ -119,3 +119,15 @@ def test_a_log_of_one_scan_is_nothing_to_judge_exit_4(tmp_path, flaser_log, caps
 def test_a_batch_ranks_nothing_to_judge_between_consistent_and_inconsistent(codes, worst):
     from map_consistency_ros.cli import exit_codes
     assert exit_codes.worst(codes) == worst
+
+
+def test_bad_input_is_one_line_whatever_the_message_holds(log, monkeypatch, capsys):
+    from map_consistency_ros.io.errors import InputError
+
+    def _bad(*_, **__):
+        raise InputError('in.yaml', 'while parsing\n  in "<unicode string>"\nexpected', 3)
+
+    monkeypatch.setattr(check, 'judge', _bad)
+    assert main(['check', str(log), '--quiet']) == 2
+    assert _lines(capsys.readouterr().err) == [
+        'map-consistency check: in.yaml:3: while parsing in "<unicode string>" expected']

@@ -119,6 +119,25 @@ def test_corrupt_files(tmp_path, name, content):
             pass
 
 
+@pytest.mark.parametrize('damage, message, line', [
+    (lambda text: text.replace('message_count:', 'message_count: [', 1),
+     r"malformed YAML in the bag's metadata \(while parsing a flow sequence; expected", None),
+    (lambda text: 'rosbag2_bagfile_information: 5\n', 'not a readable ROS bag', None),
+])
+def test_malformed_metadata_is_one_line_naming_the_file(tmp_path, recorded, damage, message,
+                                                        line):
+    folder = write_bag(tmp_path / 'bag', recorded)
+    metadata = folder / 'metadata.yaml'
+    metadata.write_text(damage(metadata.read_text()))
+    with pytest.raises(InputError, match=message) as caught:
+        with BagReader([folder]):
+            pass
+    text = str(caught.value)
+    assert '\n' not in text and str(folder) in text
+    if 'YAML' in message:
+        assert caught.value.source == str(metadata) and caught.value.line is not None
+
+
 def test_truncated_mcap(tmp_path, recorded):
     folder = write_bag(tmp_path / 'bag', recorded)
     data = (folder / 'bag.mcap').read_bytes()

@@ -84,9 +84,62 @@ def test_bad_input_names_file_and_line(tmp_path, content, message, line):
     assert str(path) in str(caught.value)
 
 
+# FLASER 3 ranges, laser pose, robot pose, ipc timestamp, host, logger timestamp
+_FIELDS = ['1.0', '2.0', '3.0', '0', '0', '0', '0', '0', '0', '1', 'h', '1']
+
+
+def _flaser(position: int, value: str) -> str:
+    fields = list(_FIELDS)
+    fields[position] = value
+    return 'FLASER 3 ' + ' '.join(fields) + '\n'
+
+
+@pytest.mark.parametrize('position,value,message', [
+    (3, '1e300', r'laser pose x 1e\+300 is beyond 1e\+06 m'),
+    (4, '-2e6', r'laser pose y -2000000.0 is beyond'),
+    (5, '1e200', r'laser pose theta 1e\+200 is beyond 1000 rad'),
+    (5, 'inf', 'laser pose theta inf is not finite'),
+    (8, 'nan', 'robot pose theta nan is not finite'),
+    (11, 'nan', 'logger timestamp nan is not finite'),
+    (11, '-1', 'logger timestamp -1.0 is negative'),
+    (11, '1e12', 'logger timestamp 1000000000000.0 is beyond'),
+    (1, 'nan', 'range 2 nan is not finite'),
+    (2, '-inf', 'range 3 -inf is not finite'),
+    (0, '1e300', r'range 1 1e\+300 is beyond'),
+])
+def test_implausible_numbers_are_bad_input(tmp_path, position, value, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(FLASER + _flaser(position, value))
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 2
+    assert str(path) in str(caught.value)
+
+
+@pytest.mark.parametrize('head,message', [
+    ('nan 3.0 1.5 20.0', 'start angle nan is not finite'),
+    ('-1.5 1e9 1.5 20.0', 'field of view 1000000000.0 is beyond'),
+    ('-1.5 3.0 1.5 inf', 'maximum range inf is not finite'),
+])
+def test_implausible_laser_parameters_are_bad_input(tmp_path, head, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(f'ROBOTLASER1 0 {head} 0.01 0 3 1.0 2.0 3.0 0 0 0 0 0 0 0 0 0 0 0 0 1 h 1\n')
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 1
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match='no such file'):
         carmen.read_carmen_log(tmp_path / 'absent.log')
+
+
+def test_garbled_gzip(tmp_path, shared_data):
+    data = (shared_data / 'carmen_corrected_extra' / 'orebro-corrected.log.gz').read_bytes()
+    path = tmp_path / 'garbled.log.gz'
+    path.write_bytes(data[:1000] + b'\xff' * 16 + data[1016:])  # a broken deflate stream
+    with pytest.raises(InputError, match='cannot read the file'):
+        carmen.read_carmen_log(path)
 
 
 def test_truncated_gzip(tmp_path, shared_data):
@@ -95,3 +148,16 @@ def test_truncated_gzip(tmp_path, shared_data):
     path.write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match='cannot read|truncated'):
         carmen.read_carmen_log(path)
+
+
+@pytest.mark.parametrize('name, value, message', [
+    ('robot_front_laser_max', '1e300', r'PARAM robot_front_laser_max \(in m\) 1e\+300 is beyond'),
+    ('robot_front_laser_max', 'nan', r'PARAM robot_front_laser_max \(in m\) nan is not finite'),
+    ('laser_front_laser_resolution', 'inf', 'laser_front_laser_resolution .* inf is not finite'),
+])
+def test_implausible_sensor_parameters_are_bad_input(tmp_path, name, value, message):
+    path = tmp_path / 'bad.log'
+    path.write_text(f'PARAM {name} {value} nohost 0\n' + FLASER)
+    with pytest.raises(InputError, match=message) as caught:
+        carmen.read_carmen_log(path)
+    assert caught.value.line == 1

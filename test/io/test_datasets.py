@@ -115,7 +115,9 @@ def _write(tmp_path, text: str, name: str = 'bad.relations'):
 @pytest.mark.parametrize('text, message, line', [
     ('1 2 0 0 0 0 0\n', 'a relation has 8 fields', 1),
     ('1 2 0 0 0 0 0 0\n1 2 x 0 0 0 0 0\n', 'non-numeric relation field', 2),
-    ('1 2 0 nan 0 0 0 0\n', 'not finite', 1),
+    ('1 2 0 nan 0 0 0 0\n', 'relation y nan is not finite', 1),
+    ('1 2 0 0 0 0 0 1e200\n', r'relation yaw 1e\+200 is beyond 1000 rad', 1),
+    ('1 2 0 0 0 0 0 0\n-1 2 0 0 0 0 0 0\n', 'relation t1 -1.0 is negative', 2),
     ('# nothing\n', 'no relations found', None),
 ])
 def test_malformed_relations_name_file_and_line(tmp_path, text, message, line):

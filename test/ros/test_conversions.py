@@ -47,11 +47,13 @@ def test_scan_round_trip_keeps_ranges_and_geometry(intel):
     assert back_model.max_range == pytest.approx(6.0)  # the smaller of the cap and range_max
 
 
-def _scan(beams=180, angle_min=-math.pi / 2, increment=math.pi / 179, angle_max=None):
+def _scan(beams=180, angle_min=-math.pi / 2, increment=math.pi / 179, angle_max=None,
+          range_max=30.0, sec=0):
     msg = LaserScan()
+    msg.header.stamp.sec = sec
     msg.angle_min, msg.angle_increment = angle_min, increment
     msg.angle_max = angle_min + (beams - 1) * increment if angle_max is None else angle_max
-    msg.range_min, msg.range_max = 0.1, 30.0
+    msg.range_min, msg.range_max = 0.1, range_max
     msg.ranges = [1.0] * beams
     return msg
 
@@ -71,10 +73,15 @@ def test_scan_angle_conventions_of_drivers_are_accepted():
 @pytest.mark.parametrize('msg, message', [
     (_scan(beams=0), 'at least 2'),
     (_scan(beams=1), 'at least 2'),
-    (_scan(increment=float('nan')), 'unusable'),
+    (_scan(increment=float('nan')), 'angle_increment nan is not finite'),
     (_scan(increment=-0.01), 'unusable'),
     (_scan(increment=0.0), 'unusable'),
-    (_scan(angle_max=float('inf')), 'unusable'),
+    (_scan(angle_max=float('inf')), 'angle_max inf is not finite'),
+    (_scan(angle_min=-1e3), r'angle_min -1000.0 is beyond 12.56\d* rad'),
+    (_scan(range_max=float('nan')), 'range_max nan is not finite'),
+    (_scan(range_max=1e300), r'range_max 1e\+300 is beyond 1e\+06 m'),
+    (_scan(range_max=-float('inf')), 'range_max -inf is not finite'),
+    (_scan(sec=-5), r'scan stamped -5.0 s: header stamp -5.0 is negative'),
     (_scan(beams=90, angle_max=math.pi / 2), 'imply 180.0 beams but it has 90'),
     (_scan(beams=400, increment=0.02), 'overlap past 2 pi'),
 ])
@@ -318,3 +325,11 @@ def _broken(change):
 def test_bad_graph_markers_are_refused(change, message):
     with pytest.raises(ValueError, match=message):
         messages.to_record(messages.MARKER_ARRAY_TYPE, _broken(change))
+
+
+def test_a_pose_stamped_before_the_epoch_is_refused():
+    msg = messages.single_pose_message(message_class, messages.POSE_STAMPED_TYPE, 1.0,
+                                       np.zeros(3))
+    msg.header.stamp.sec = -3
+    with pytest.raises(ValueError, match='pose stamped -3.0 s: header stamp -3.0 is negative'):
+        messages.to_record(messages.POSE_STAMPED_TYPE, msg)
