@@ -5,8 +5,9 @@
     python3 bootstrap.py test   # the whole test suite
 
 Only python3 is needed: the venv gets the package (editable), ROS 2 Jazzy's Python
-client from PyPI and the test tools. The venv is rebuilt when setup.py or
-constraints.txt change.
+client from PyPI and the test tools, then its compiled kernels are cached
+(`map-consistency warm-up`). The venv is rebuilt when setup.py or constraints.txt
+change.
 """
 import hashlib
 import os
@@ -49,6 +50,11 @@ def ensure_venv() -> None:
                '-c', str(ROOT / 'constraints.txt'), '-e', f'{ROOT}[ros,test]']
     if _run(install) != 0:
         sys.exit('bootstrap: installing into .venv failed (see the pip output above)')
+    # numba compiles a kernel on its first call: compiled now, into its cache beside the
+    # sources, no first command waits for all of them (cli/warm_up.py)
+    if _run([str(VENV / 'bin' / 'map-consistency'), 'warm-up']) != 0:
+        print('bootstrap: warming the kernels failed; the first command will compile them',
+              file=sys.stderr)
     STAMP.write_text(fingerprint)
 
 

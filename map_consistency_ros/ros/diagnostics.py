@@ -89,7 +89,7 @@ def status_level(health: MonitorHealth) -> tuple[bytes, str]:
     if health.starting:
         received = ('nothing received yet' if health.seconds_since_input is None
                     else f'{health.queued_scans} scans queued')
-        return DiagnosticStatus.WARN, f'starting: loading the compiled kernels ({received})'
+        return DiagnosticStatus.WARN, f'starting: compiling the kernels or loading them from the cache ({received})'
     if health.seconds_since_input is None:
         return DiagnosticStatus.STALE, 'no scan or trajectory received yet'
     if health.seconds_since_input > health.stale_timeout:

@@ -237,12 +237,14 @@ class Engine:
     def _work(self) -> None:
         _run_kernels_on(self._settings.update_threads)
         # records queue meanwhile: the first update then finds the kernels loaded
+        started = time.monotonic()
         try:
             warm_up()
         except Exception as error:  # noqa: BLE001 - the node stays up to say why it cannot work
             self.start_failure = f'{type(error).__name__}: {error}'
             self._logger.error(not_monitoring(self.start_failure))
             return
+        self._logger.info(f'kernels ready in {time.monotonic() - started:.1f} s')
         self._ready.set()
         while not self._stop.is_set():
             self._wake.wait(timeout=0.5)

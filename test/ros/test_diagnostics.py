@@ -40,9 +40,9 @@ NOTHING = {'consistent': False, 'nothing_to_judge': True, 'keyframes': 1,
     ({**BROKEN, 'lost_scans': 2}, DiagnosticStatus.ERROR, 'objects); 2 scans lost'),
     ({'gap_scans': 40}, DiagnosticStatus.OK, 'map CONSISTENT: '),  # an estimate
     ({'starting': True, 'seconds_since_input': None, 'consistent': None}, DiagnosticStatus.WARN,
-     'starting: loading the compiled kernels (nothing received yet)'),
+     'starting: compiling the kernels or loading them from the cache (nothing received yet)'),
     ({'starting': True, 'queued_scans': 40, 'consistent': None}, DiagnosticStatus.WARN,
-     'starting: loading the compiled kernels (40 scans queued)'),
+     'starting: compiling the kernels or loading them from the cache (40 scans queued)'),
     ({'starting': True, 'start_failure': 'OSError: cache unreadable', 'queued_scans': 7,
       'consistent': None}, DiagnosticStatus.ERROR,
      'not monitoring: loading the compiled kernels failed (OSError: cache unreadable); '

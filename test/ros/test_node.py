@@ -314,8 +314,8 @@ def test_before_any_input_the_node_is_stale_and_has_nothing_to_check(idle_probe)
     status = _wait(lambda: probe.status_value('ready') == 'yes' and probe.latest_status(),
                    what='the kernels loaded')
     starting = [s for s in probe.diagnostics if s.level == DiagnosticStatus.WARN]
-    assert all(s.message == 'starting: loading the compiled kernels (nothing received yet)'
-               for s in starting)
+    assert all(s.message == 'starting: compiling the kernels or loading them from the cache '
+                            '(nothing received yet)' for s in starting)
     assert status.level == DiagnosticStatus.STALE
     assert status.message == 'no scan or trajectory received yet'
     response = probe.call(probe.check)
