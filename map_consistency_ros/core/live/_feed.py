@@ -9,7 +9,9 @@ record did, including every warning, so the node and replay report the same prob
   `ScanGaps`) and the automatic reset: RESET_CONFIRMATIONS scans in a row stamped more than
   `reset_stamp_jump` seconds before the newest one mean the SLAM stack restarted or the bag
   looped (one stray old stamp must not wipe the map: such scans are held until confirmed,
-  and skipped with a warning when a scan of the current session follows).
+  and skipped with a warning when a scan of the current session follows; a stray that comes
+  just before the new session's scans is skipped too, and the session confirmed by its own
+  scans: `_session_start`).
 - `KeyframeEstimate`: the back-end's full keyframe estimate (a Path, or the output of a bridge
   from a SLAM stack's own graph messages: apply its keyframe stamps and poses here).
 - `PoseSample`: one pose of a single-pose topic; `PoseKeyframer` interpolates each scan's pose
@@ -269,6 +271,34 @@ class ScanGaps:
         return missing
 
 
+def _session_start(held: list[Scan], jump: float) -> int:
+    """Where a new session begins among scans held after a jump back in stamps.
+
+    A stray old scan (a late one of the ending session) may come just before a restarted
+    SLAM stack's first scans: those then jump back from it as they jumped back from the
+    session. The new session is the longest tail of `held` in which no scan is stamped more
+    than `jump` before an earlier one of the tail; the scans before it are strays.
+
+    Parameters
+    ----------
+    held: the held scans, in arrival order.
+    jump: reset_stamp_jump, seconds (positive).
+
+    Returns
+    -------
+    The index in `held` of the new session's first scan (0: no stray).
+    """
+    first, oldest_after = len(held), math.inf
+    for index in range(len(held) - 1, -1, -1):
+        # held[index:] is jump-free when held[index + 1:] is and no scan of it jumps back
+        # from held[index]
+        stamp = held[index].stamp
+        if oldest_after < stamp - jump:
+            break
+        first, oldest_after = index, min(oldest_after, stamp)
+    return first
+
+
 @dataclass(frozen=True)
 class Applied:
     """What one record did: the update (None when the map did not change), its warnings,
@@ -391,22 +421,31 @@ class MonitorFeed:
         jump = self.settings.reset_stamp_jump
         if jump > 0.0 and scan.stamp < self._newest_scan - jump:
             self._jumped.append(scan)
-            if len(self._jumped) < RESET_CONFIRMATIONS:
+            first = _session_start(self._jumped, jump)
+            if len(self._jumped) - first < RESET_CONFIRMATIONS:
                 return Applied()
-            held, back = self._jumped, self._newest_scan - self._jumped[0].stamp
-            reason = (f'scan stamps jumped back {back:.1f} s (more than reset_stamp_jump = '
-                      f'{jump:g} s) for {len(held)} scans: a new session')
+            newest, strays = self._newest_scan, self._jumped[:first]
+            session = self._jumped[first:]
+            reason = (f'scan stamps jumped back {newest - session[0].stamp:.1f} s (more than '
+                      f'reset_stamp_jump = {jump:g} s) for {len(session)} scans: a new session')
             self.reset(reason)
-            applied = [self._add_scan(held_scan) for held_scan in held]
+            skipped = self._skipped(strays, newest)
+            applied = [self._add_scan(held_scan) for held_scan in session]
             return Applied(summary=next((a.summary for a in reversed(applied) if a.summary),
                                         None),
-                           warnings=tuple(w for a in applied for w in a.warnings), reset=reason)
-        stray = tuple(f'scan at {held.stamp:.6f} skipped: stamped more than reset_stamp_jump '
-                      f'before the newest scan ({self._newest_scan:.6f})'
-                      for held in self._jumped)
+                           warnings=skipped + tuple(w for a in applied for w in a.warnings),
+                           reset=reason)
+        skipped = self._skipped(self._jumped, self._newest_scan)
         self._jumped = []
         applied = self._add_scan(scan)
-        return Applied(summary=applied.summary, warnings=stray + applied.warnings)
+        return Applied(summary=applied.summary, warnings=skipped + applied.warnings)
+
+    @staticmethod
+    def _skipped(scans: list[Scan], newest: float) -> tuple[str, ...]:
+        """The warnings of held scans skipped as strays, each older than `newest` by more than
+        reset_stamp_jump."""
+        return tuple(f'scan at {held.stamp:.6f} skipped: stamped more than reset_stamp_jump '
+                     f'before the newest scan ({newest:.6f})' for held in scans)
 
     def _add_scan(self, scan: Scan) -> Applied:
         self._newest_scan = max(self._newest_scan, scan.stamp)

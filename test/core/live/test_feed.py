@@ -153,6 +153,30 @@ def test_a_stamp_jump_resets_only_when_confirmed(intel):
     assert feed.monitor.keyframe_count == RESET_CONFIRMATIONS
 
 
+@pytest.mark.parametrize('stray_offset', [-0.5, -150.0])
+def test_a_stray_old_scan_before_a_restart_costs_no_scan_of_the_new_session(intel,
+                                                                           stray_offset):
+    """A late scan of the ending session, stamped more than reset_stamp_jump before its newest
+    (-0.5 s: newer than the new session's scans, -150 s: older), then a restarted session:
+    one reset, every scan of the new session kept."""
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(EVERY_KEYFRAME)
+    for scan in _scan_records(stamps[:20], ranges[:20], model):
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps[:20], poses=poses[:20]))
+    stray = Scan(stamp=float(stamps[10]) + stray_offset, ranges=ranges[10], model=model)
+    restarted = stamps[:30] - 100.0
+    applied = [feed.apply(scan) for scan in
+               [stray] + _scan_records(restarted, ranges[:30], model)]
+    assert feed.resets == 1 and sum(bool(a.reset) for a in applied) == 1
+    feed.apply(KeyframeEstimate(stamps=restarted, poses=poses[:30]))
+    assert feed.monitor.keyframe_count == 30
+    newer = stray_offset > -100.0  # the stray jumps back from nothing of the new session
+    warned = [w for a in applied for w in a.warnings if 'skipped' in w]
+    assert len(warned) == (1 if newer else 0)
+    assert feed.monitor.evaluate().buffered_scans == (0 if newer else 1)
+
+
 def test_constraints_and_bad_constraints():
     feed = MonitorFeed()
     assert feed.apply(Constraints(rows=np.zeros((0, 11)))).warnings == ()
