@@ -160,7 +160,7 @@ class Outputs:
             seconds_since_input=(None if inputs.last_input is None
                                  else max(now - inputs.last_input, 0.0)),
             stale_timeout=stale_timeout, queued_scans=inputs.queued_scans,
-            lost_scans=inputs.lost_scans + snapshot.dropped_scans, gap_scans=feed.gap_scans,
+            lost_scans=inputs.lost_scans + snapshot.pushed_out_scans, gap_scans=feed.gap_scans,
             poses_without_scan=snapshot.poses_without_scan,
             folded_scans=snapshot.folded_scans, resets=feed.resets,
             last_reset=feed.last_reset, starting=not engine.ready,

@@ -17,6 +17,9 @@ record did, including every warning, so the node and replay report the same prob
 - `PoseSample`: one pose of a single-pose topic; `PoseKeyframer` interpolates each scan's pose
   and selects keyframes by travelled distance / turned angle, as a SLAM front end would.
 - `Constraints`: the pose-graph edges for DCS retuning.
+- `DroppedScans`: scans received but never applied (a full queue, unreadable messages), so
+  that the account of every scan received (`scan_counts`, core/live/_scan_counts.py) holds
+  them too.
 - With `pose_source: slam_toolbox`, `PoseSample`s (slam_toolbox's `pose`, one per accepted
   scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
   (core/live/_graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
@@ -46,9 +49,10 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.live._graph_bridge import BridgeCounts, SlamToolboxBridge
 from map_consistency_ros.core.live._pose_graph_bridge import PoseGraphBridge, PoseGraphCounts
-from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                                    LoopClosure, NodeEvent, PoseGraphNodes,
-                                                    PoseSample, Record, Scan)
+from map_consistency_ros.core.live._records import (Constraints, DroppedScans, GraphSnapshot,
+                                                    KeyframeEstimate, LoopClosure, NodeEvent,
+                                                    PoseGraphNodes, PoseSample, Record, Scan)
+from map_consistency_ros.core.live._scan_counts import ScanCounts
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    UpdateSummary)
 from map_consistency_ros.core.parameters import Choice, Settings, parameter
@@ -128,9 +132,10 @@ class PoseKeyframer:
     """Keyframes from single-pose messages and the scans between them.
 
     Each scan takes the pose interpolated at its stamp between the two pose messages around
-    it (scans outside the pose stream are dropped and counted). A scan becomes a keyframe when
-    the robot has moved `min_distance` metres or turned `min_angle` radians since the last
-    keyframe. `add_pose` returns the scans that became keyframes.
+    it (scans outside the pose stream are dropped and counted in `unplaced`). A scan becomes a
+    keyframe when the robot has moved `min_distance` metres or turned `min_angle` radians since
+    the last keyframe (the others are counted in `passed_over`). `add_pose` returns the scans
+    that became keyframes; every scan added is pending (`waiting`), returned or counted.
     """
 
     def __init__(self, min_distance: float, min_angle: float, history: int = 256) -> None:
@@ -143,7 +148,13 @@ class PoseKeyframer:
         self._last: np.ndarray | None = None
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
-        self.dropped = 0
+        self.unplaced = 0  # no pose before or around their stamps
+        self.passed_over = 0  # the robot had not moved far enough since the last keyframe
+
+    @property
+    def waiting(self) -> int:
+        """Scans held until a pose at or after their stamps arrives."""
+        return len(self._pending)
 
     def add_scan(self, scan: Scan) -> None:
         """Hold a scan until a pose at or after its stamp arrives (`add_pose`).
@@ -174,12 +185,14 @@ class PoseKeyframer:
             scan = self._pending.popleft()
             pose = self._interpolate(scan.stamp)
             if pose is None:
-                self.dropped += 1
+                self.unplaced += 1
             elif self._is_keyframe(pose):
                 self._last = pose
                 self.stamps.append(scan.stamp)
                 self.poses.append(pose)
                 keyframes.append(scan)
+            else:
+                self.passed_over += 1
         return keyframes
 
     def _interpolate(self, stamp: float) -> np.ndarray | None:
@@ -320,6 +333,8 @@ class MonitorFeed:
         self.settings = settings or FeedSettings()
         self.resets = 0
         self.last_reset = ''
+        self._received = 0  # scans received since the start (scan records and DroppedScans)
+        self._earlier = 0  # of those, the scans received before the last reset
         self._start()
 
     def _start(self) -> None:
@@ -333,19 +348,52 @@ class MonitorFeed:
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
+        self._rejected = 0  # scans of this session refused as bad input
+        self._lost_in_queue = 0  # scans of this session dropped from a full queue
         self.estimate_stamp = math.nan  # (module docstring) NaN before any estimate
         self._taken_stamp = math.nan  # the newest estimate the monitor took
 
     def reset(self, reason: str) -> None:
-        """Forget every scan, keyframe and constraint (a new SLAM session).
+        """Forget every scan, keyframe and constraint (a new SLAM session); the scans received
+        so far count as `earlier_sessions` from now on.
 
         Parameters
         ----------
         reason: why, kept as `last_reset`.
         """
+        self._reset(reason, carried=0)
+
+    def _reset(self, reason: str, carried: int) -> None:
+        """reset(reason), the last `carried` scans received belonging to the new session (they
+        confirmed it and are applied after)."""
         self.resets += 1
         self.last_reset = reason
+        self._earlier = self._received - carried
         self._start()
+
+    def scan_counts(self, monitor_counts: dict[str, int] | None = None) -> ScanCounts:
+        """What became of every scan received since the start (core/live/_scan_counts.py).
+
+        Parameters
+        ----------
+        monitor_counts: the monitor's `counts()` now, when the caller has them (else read).
+
+        Returns
+        -------
+        The ScanCounts, balanced.
+        """
+        counts = self.monitor.counts() if monitor_counts is None else monitor_counts
+        keyframer = self.keyframer
+        return ScanCounts(
+            received=self._received, keyframes=self.monitor.keyframe_count,
+            folded=counts['folded_scans'],
+            waiting=(len(self._jumped) + counts['buffered_scans']
+                     + (0 if keyframer is None else keyframer.waiting)),
+            passed_over=(counts['passed_over_scans']
+                         + (0 if keyframer is None else keyframer.passed_over)),
+            lost_in_queue=self._lost_in_queue, pushed_out=counts['pushed_out_scans'],
+            unplaced=0 if keyframer is None else keyframer.unplaced,
+            rejected=self._rejected, earlier_sessions=self._earlier)
 
     @property
     def gap_scans(self) -> int:
@@ -378,7 +426,14 @@ class MonitorFeed:
         when it reset the monitor.
         """
         if isinstance(record, Scan):
+            self._received += 1
             return self._scan(record)
+        if isinstance(record, DroppedScans):
+            self._received += len(record.stamps) + record.unreadable
+            self._lost_in_queue += len(record.stamps)
+            self._rejected += record.unreadable
+            self.monitor.note_not_kept(record.stamps)
+            return Applied()
         if isinstance(record, KeyframeEstimate):
             if self.settings.pose_source != PoseSource.PATH:
                 return Applied(warnings=('a keyframe estimate was given while pose_source is '
@@ -428,7 +483,7 @@ class MonitorFeed:
             session = self._jumped[first:]
             reason = (f'scan stamps jumped back {newest - session[0].stamp:.1f} s (more than '
                       f'reset_stamp_jump = {jump:g} s) for {len(session)} scans: a new session')
-            self.reset(reason)
+            self._reset(reason, carried=len(self._jumped))
             skipped = self._skipped(strays, newest)
             applied = [self._add_scan(held_scan) for held_scan in session]
             return Applied(summary=next((a.summary for a in reversed(applied) if a.summary),
@@ -440,10 +495,11 @@ class MonitorFeed:
         applied = self._add_scan(scan)
         return Applied(summary=applied.summary, warnings=skipped + applied.warnings)
 
-    @staticmethod
-    def _skipped(scans: list[Scan], newest: float) -> tuple[str, ...]:
-        """The warnings of held scans skipped as strays, each older than `newest` by more than
-        reset_stamp_jump."""
+    def _skipped(self, scans: list[Scan], newest: float) -> tuple[str, ...]:
+        """Held scans skipped as strays, each older than `newest` by more than
+        reset_stamp_jump: counted as rejected, and their warnings."""
+        self._rejected += len(scans)
+        self.monitor.note_not_kept([scan.stamp for scan in scans])
         return tuple(f'scan at {held.stamp:.6f} skipped: stamped more than reset_stamp_jump '
                      f'before the newest scan ({newest:.6f})' for held in scans)
 
@@ -456,6 +512,7 @@ class MonitorFeed:
         try:
             self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
         except ValueError as error:
+            self._rejected += 1
             return Applied(warnings=(f'scan at {scan.stamp:.6f} skipped: {error}',))
         return self._update(self.monitor.refresh) if self.monitor.pending else Applied()
 
@@ -562,6 +619,7 @@ class MonitorFeed:
             try:
                 self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
             except ValueError as error:
+                self._rejected += 1
                 warnings.append(f'scan at {scan.stamp:.6f} skipped: {error}')
         if not placed:
             return Applied(warnings=tuple(warnings))

@@ -95,5 +95,15 @@ class LoopClosure:
     stamp: float
 
 
+@dataclass(frozen=True)
+class DroppedScans:
+    """Scans received but never applied as Scan records, counted in the pipeline's account
+    (core/live/_scan_counts.py): `stamps` (L,) of scans dropped from a full queue (lost), and
+    `unreadable` scan messages that no record could be made of (rejected)."""
+
+    stamps: np.ndarray
+    unreadable: int = 0
+
+
 Record = (Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot | NodeEvent
-          | PoseGraphNodes | LoopClosure)
+          | PoseGraphNodes | LoopClosure | DroppedScans)

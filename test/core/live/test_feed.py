@@ -236,7 +236,7 @@ def test_odometry_keyframes_interpolate_and_select():
     keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
     keyframes.add_scan(_scan(0.5))  # before any pose: cannot be placed
     assert keyframes.add_pose(_sample(1.0, [1.0, 2.0, math.pi / 2])) == []
-    assert keyframes.dropped == 1
+    assert keyframes.unplaced == 1
     for stamp in (1.5, 2.0, 2.5, 3.5):
         keyframes.add_scan(_scan(stamp))
     # From (1, 2, pi/2) the robot moves 2 m forward and turns 0.4 rad by t = 3.
