@@ -215,7 +215,8 @@ class Replay:
                 self.stats.warn(f'message {record.index} on {record.topic} ignored: '
                                 f'{record.reason}')
                 if record.topic == self.bag.topics.scan:  # received: it counts (rejected)
-                    self.pipeline.apply(DroppedScans(stamps=np.zeros(0), unreadable=1))
+                    self.pipeline.apply(DroppedScans(lost=np.zeros(0),
+                                                     unreadable=np.array([math.nan])))
                 continue
             self._count(record)
             applied = self.pipeline.apply(record)

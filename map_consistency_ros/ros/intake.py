@@ -73,6 +73,15 @@ def _deserialized(data: bytes, msgtype: str):
         raise ValueError(f'undecodable {msgtype} message ({error})') from None
 
 
+def _header_stamp(msg) -> float:
+    """The header stamp of a scan message that could not be read, in seconds; NaN when that
+    is unreadable too (a pose naming the scan is then taken for one whose scan never came)."""
+    try:
+        return messages.stamp_to_seconds(msg.header.stamp)
+    except (AttributeError, TypeError, ValueError):
+        return math.nan
+
+
 class Intake:
     """The node's subscriptions and queues (see the module docstring).
 
@@ -107,7 +116,7 @@ class Intake:
         self._received = 0  # scan messages received
         self._handed = 0  # of those, handed to the engine (InputFigures.handed_scans)
         self._lost: list[float] = []  # stamps of scans dropped from the full queue, not handed
-        self._unreadable = 0  # unreadable scans, not handed over yet
+        self._unreadable: list[float] = []  # header stamps of unreadable scans, not handed
 
     def subscribe(self) -> None:
         """Create the subscriptions of the pose source (docs/node.md, Inputs)."""
@@ -163,10 +172,11 @@ class Intake:
             records = list(self._scans) + list(self._poses)
             self._handed += len(self._scans)
             if self._lost or self._unreadable:
-                dropped = DroppedScans(stamps=np.array(self._lost), unreadable=self._unreadable)
+                dropped = DroppedScans(lost=np.array(self._lost),
+                                       unreadable=np.array(self._unreadable))
                 records.insert(0, (time.monotonic(), dropped))
-                self._handed += len(self._lost) + self._unreadable
-                self._lost, self._unreadable = [], 0
+                self._handed += len(self._lost) + len(self._unreadable)
+                self._lost, self._unreadable = [], []
             self._scans.clear()
             self._poses.clear()
             for latest in (self._constraints, self._estimate):
@@ -224,7 +234,8 @@ class Intake:
                                 last_problem=self._last_problem,
                                 middleware_lost=self._dds_lost, received_scans=self._received,
                                 queued_scans=len(self._scans), handed_scans=self._handed,
-                                lost_scans=len(self._lost), unreadable_scans=self._unreadable)
+                                lost_scans=len(self._lost),
+                                unreadable_scans=len(self._unreadable))
 
     # -- callbacks (cheap: convert and queue) ------------------------------------------------
 
@@ -262,7 +273,7 @@ class Intake:
         with self._lock:
             self._received += 1
             if record is None:
-                self._unreadable += 1
+                self._unreadable.append(_header_stamp(msg))
             else:
                 if len(self._scans) >= self._queue_limit:
                     self._lost.append(self._scans.popleft()[1].stamp)

@@ -65,9 +65,14 @@ def test_every_scan_received_is_queued_handed_or_handed_on_as_dropped(monkeypatc
     model = SensorModel(angle_min=-1.0, angle_increment=0.5, max_range=10.0)
 
     def convert(msgtype, msg, max_range):
-        if msg is None:
+        if msg.ranges == 1:
             raise ValueError('scan has 1 ranges; at least 2 are needed')
-        return Scan(stamp=float(msg), ranges=np.ones(5), model=model)
+        return Scan(stamp=msg.header.stamp.sec, ranges=np.ones(5), model=model)
+
+    def message(stamp: int, ranges: int = 5) -> SimpleNamespace:
+        return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=stamp,
+                                                                            nanosec=0)),
+                               ranges=ranges)
 
     monkeypatch.setattr(intake_module.messages, 'to_record', convert)
     node = _node()
@@ -79,16 +84,17 @@ def test_every_scan_received_is_queued_handed_or_handed_on_as_dropped(monkeypatc
         assert figures.received_scans == (figures.queued_scans + figures.handed_scans
                                           + figures.lost_scans + figures.unreadable_scans)
 
-    for message in (1, 2, None, 3, 4, 5):
-        intake._on_scan(message)
+    for scan in (message(1), message(2), message(9, ranges=1), message(3), message(4),
+                 message(5)):
+        intake._on_scan(scan)
         balanced()
     figures = intake.figures()
     assert (figures.received_scans, figures.queued_scans, figures.lost_scans,
             figures.unreadable_scans) == (6, 3, 2, 1)
     taken = [record for _, record in intake.take()]
     balanced()
-    assert isinstance(taken[0], DroppedScans) and taken[0].unreadable == 1
-    assert taken[0].stamps.tolist() == [1.0, 2.0]
+    assert isinstance(taken[0], DroppedScans) and taken[0].unreadable.tolist() == [9.0]
+    assert taken[0].lost.tolist() == [1.0, 2.0]
     assert [record.stamp for record in taken[1:]] == [3.0, 4.0, 5.0]
     assert intake.figures().handed_scans == 6
     assert len(intake.take()) == 0  # nothing dropped since: no record

@@ -429,10 +429,10 @@ class MonitorFeed:
             self._received += 1
             return self._scan(record)
         if isinstance(record, DroppedScans):
-            self._received += len(record.stamps) + record.unreadable
-            self._lost_in_queue += len(record.stamps)
-            self._rejected += record.unreadable
-            self.monitor.note_not_kept(record.stamps)
+            self._received += len(record.lost) + len(record.unreadable)
+            self._lost_in_queue += len(record.lost)
+            self._rejected += len(record.unreadable)
+            self.monitor.note_not_kept(np.concatenate([record.lost, record.unreadable]))
             return Applied()
         if isinstance(record, KeyframeEstimate):
             if self.settings.pose_source != PoseSource.PATH:

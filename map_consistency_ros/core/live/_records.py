@@ -98,11 +98,12 @@ class LoopClosure:
 @dataclass(frozen=True)
 class DroppedScans:
     """Scans received but never applied as Scan records, counted in the pipeline's account
-    (core/live/_scan_counts.py): `stamps` (L,) of scans dropped from a full queue (lost), and
-    `unreadable` scan messages that no record could be made of (rejected)."""
+    (core/live/_scan_counts.py): `lost` (L,) the stamps of scans dropped from a full queue, and
+    `unreadable` (U,) the header stamps of scan messages that no record could be made of
+    (rejected; NaN where the stamp was unreadable too)."""
 
-    stamps: np.ndarray
-    unreadable: int = 0
+    lost: np.ndarray
+    unreadable: np.ndarray
 
 
 Record = (Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot | NodeEvent

@@ -33,7 +33,7 @@ class Account:
         if isinstance(record, Scan):
             self.given += 1
         elif isinstance(record, DroppedScans):
-            self.given += len(record.stamps) + record.unreadable
+            self.given += len(record.lost) + len(record.unreadable)
         applied = self.pipeline.apply(record)
         counts = self.counts()
         assert counts.balanced(), counts
@@ -50,7 +50,7 @@ def test_every_scan_of_a_faulty_stream_is_counted_once(intel):
     other = SensorModel(model.angle_min, model.angle_increment * 0.5, model.max_range)
     lost = [float(stamps[30]), float(stamps[31])]  # dropped from a full queue ahead
     for k in range(SCANS):
-        if k in (30, 31):
+        if k in (30, 31, 33):
             continue
         scan = Scan(stamp=float(stamps[k]), ranges=ranges[k], model=model)
         account.apply(scan)
@@ -61,7 +61,9 @@ def test_every_scan_of_a_faulty_stream_is_counted_once(intel):
         if k % 10 == 9 and k < 80:  # the estimate lags five scans, names every one but 40..49
             named = np.array([j for j in range(k - 4) if not 40 <= j < 50])
             account.apply(KeyframeEstimate(stamps=stamps[named], poses=poses[named]))
-    account.apply(DroppedScans(stamps=np.array(lost), unreadable=3))
+    # unreadable scans: one whose header stamp could be read, two that could not
+    account.apply(DroppedScans(lost=np.array(lost),
+                               unreadable=np.array([float(stamps[33]), np.nan, np.nan])))
     counts = account.counts()
     monitor = account.pipeline.monitor
     snapshot = account.pipeline.evaluate()
@@ -72,6 +74,8 @@ def test_every_scan_of_a_faulty_stream_is_counted_once(intel):
     assert counts.waiting == snapshot.buffered_scans == 20
     assert counts.passed_over == 10 and counts.pushed_out == 5
     assert counts.earlier_sessions == 0 and counts.unplaced == 0
+    # the poses of the scans lost or rejected before the pipeline name scans that came
+    assert snapshot.poses_without_scan == 0
     # a reset: everything so far was the previous session's
     account.pipeline.reset('test')
     counts = account.counts()
