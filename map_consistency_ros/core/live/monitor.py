@@ -51,6 +51,10 @@ from map_consistency_ros.core.parameters import Settings, parameter
 # Batches of at most this many pairs keep a live node's shutdown responsive during a large
 # update (a loop closure, a burst of keyframes).
 MEASURE_CHUNK = 1024
+# The stamps of scans refused or lost that the monitor remembers (the newest; 0.8 MB), so that
+# the poses naming them are not taken for poses whose scans never came: bounded, as scans may
+# be refused all along (a second laser on the topic).
+NOT_KEPT_LIMIT = 100_000
 
 
 @dataclass(frozen=True)
@@ -111,7 +115,9 @@ class MonitorSnapshot:
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
     pushed_out_scans: int = 0  # lost: pushed out of the full buffer before a pose reached them
     passed_over_scans: int = 0  # pushed out of the buffer after the estimate went past them
-    poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
+    # unmatched poses older than the newest scan and not older than the first, whose scans
+    # never came (ConsistencyMonitor.counts)
+    poses_without_scan: int = 0
     folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
     estimate_stamp: float = math.nan  # the estimate these poses are (LivePipeline.evaluate)
     # what became of every scan received (LivePipeline.evaluate; None from the monitor alone)
@@ -191,7 +197,7 @@ class ConsistencyMonitor:
         self._unmatched_stamps = np.zeros(0)
         self._pending = False
         # the oldest scan stamp given to add_scan; the stamps of the scans that came and were
-        # not kept (sorted, and those noted since the last count)
+        # not kept (sorted, the newest NOT_KEPT_LIMIT of them, and those noted since)
         self._first_scan = math.inf
         self._not_kept = np.zeros(0)
         self._not_kept_new: list[float] = []
@@ -254,6 +260,16 @@ class ConsistencyMonitor:
         """
         finite = [float(stamp) for stamp in stamps if math.isfinite(stamp)]
         self._not_kept_new.extend(finite)
+        if len(self._not_kept_new) > NOT_KEPT_LIMIT:
+            self._merge_not_kept()
+
+    def _merge_not_kept(self) -> None:
+        """The stamps noted as not kept into the sorted ones, of which the newest
+        NOT_KEPT_LIMIT are kept (a pose naming an older one is then taken for one whose scan
+        never came)."""
+        merged = np.sort(np.concatenate([self._not_kept, self._not_kept_new]))
+        self._not_kept = merged[-NOT_KEPT_LIMIT:]
+        self._not_kept_new = []
 
     def _add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
         """add_scan, without the bookkeeping of scans not kept."""
@@ -278,7 +294,7 @@ class ConsistencyMonitor:
         buffer = self._buffer
         left = buffer.pushed_out + buffer.passed_over
         reached = self._path_stamps[-1] if self._path_stamps.size else -math.inf  # sorted
-        self._not_kept_new.extend(buffer.add(stamp, ranges, reached))
+        self.note_not_kept(buffer.add(stamp, ranges, reached))
         if buffer.pushed_out + buffer.passed_over != left:  # a scan went: check what is held
             self._pending = self._buffer_matches_unmatched()
         elif not self._pending:
@@ -505,9 +521,8 @@ class ConsistencyMonitor:
                                                 self._buffer.newest - tolerance])
         late = unmatched[low:max(low, high)]
         if late.size and (self._not_kept.size or self._not_kept_new):
-            if self._not_kept_new:  # few: refused and lost scans
-                self._not_kept = np.sort(np.concatenate([self._not_kept, self._not_kept_new]))
-                self._not_kept_new = []
+            if self._not_kept_new:
+                self._merge_not_kept()
             late = late[match_sorted(late, self._not_kept, tolerance) < 0]
         return int(late.size)
 

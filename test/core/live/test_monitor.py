@@ -10,6 +10,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   check_consistency, inconsistent_endpoints)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel, point_distances, se2
 from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
+from map_consistency_ros.core.live import monitor as monitor_module
 from map_consistency_ros.core.live._keyframes import NO_SCAN
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -370,6 +371,19 @@ def test_poses_of_scans_that_came_or_came_before_the_first_are_not_without_scan(
     monitor.add_scan(stamps[24], ranges[24], model)
     monitor.update_trajectory(stamps[:25], poses[:25])  # scan 23 never came
     assert monitor.evaluate().poses_without_scan == 1
+
+
+def test_the_stamps_of_scans_not_kept_are_bounded(intel, monkeypatch):
+    """Only the newest NOT_KEPT_LIMIT stamps of scans refused or lost are remembered: the pose
+    of an older one counts as a pose whose scan never came."""
+    monkeypatch.setattr(monitor_module, 'NOT_KEPT_LIMIT', 3)
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor()
+    monitor.add_scan(stamps[0], ranges[0], model)
+    monitor.note_not_kept(stamps[1:6])
+    monitor.add_scan(stamps[6], ranges[6], model)
+    monitor.update_trajectory(stamps[:7], poses[:7])
+    assert monitor.evaluate().poses_without_scan == 2  # scans 1 and 2 forgotten
 
 
 def test_a_pose_whose_scan_never_came_is_reported_once_newer_scans_arrive(intel):
