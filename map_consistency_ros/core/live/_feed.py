@@ -9,9 +9,9 @@ record did, including every warning, so the node and replay report the same prob
   `ScanGaps`) and the automatic reset: RESET_CONFIRMATIONS scans in a row stamped more than
   `reset_stamp_jump` seconds before the newest one mean the SLAM stack restarted or the bag
   looped (one stray old stamp must not wipe the map: such scans are held until confirmed,
-  and skipped with a warning when a scan of the current session follows; a stray that comes
-  just before the new session's scans is skipped too, and the session confirmed by its own
-  scans: `_session_start`).
+  and skipped with a warning once RESET_CONFIRMATIONS scans of the current session in a row
+  follow; a stray that comes just before the new session's scans is skipped too, and the
+  session confirmed by its own scans: `_session_start`).
 - `KeyframeEstimate`: the back-end's full keyframe estimate (a Path, or the output of a bridge
   from a SLAM stack's own graph messages: apply its keyframe stamps and poses here).
 - `PoseSample`: one pose of a single-pose topic; `PoseKeyframer` interpolates each scan's pose
@@ -348,6 +348,7 @@ class MonitorFeed:
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
+        self._current = 0  # scans of the current session in a row since the last one held
         self._rejected = 0  # scans of this session refused as bad input
         self._lost_in_queue = 0  # scans of this session dropped from a full queue
         self.estimate_stamp = math.nan  # (module docstring) NaN before any estimate
@@ -476,6 +477,7 @@ class MonitorFeed:
         jump = self.settings.reset_stamp_jump
         if jump > 0.0 and scan.stamp < self._newest_scan - jump:
             self._jumped.append(scan)
+            self._current = 0
             first = _session_start(self._jumped, jump)
             if len(self._jumped) - first < RESET_CONFIRMATIONS:
                 return Applied()
@@ -490,8 +492,13 @@ class MonitorFeed:
                                         None),
                            warnings=skipped + tuple(w for a in applied for w in a.warnings),
                            reset=reason)
-        skipped = self._skipped(self._jumped, self._newest_scan)
-        self._jumped = []
+        skipped = ()
+        self._current += 1
+        if self._jumped and self._current >= RESET_CONFIRMATIONS:
+            # the session goes on: the held scans were strays (one late scan of the session
+            # among a restarted stack's first scans does not make them strays)
+            skipped = self._skipped(self._jumped, self._newest_scan)
+            self._jumped = []
         applied = self._add_scan(scan)
         return Applied(summary=applied.summary, warnings=skipped + applied.warnings)
 

@@ -91,7 +91,8 @@ def test_an_automatic_reset_keeps_the_scans_that_confirmed_it(intel):
     before = account.given
     # a stray held and skipped: rejected
     account.apply(Scan(stamp=float(stamps[0]) - 50.0, ranges=ranges[0], model=model))
-    account.apply(Scan(stamp=float(stamps[20]), ranges=ranges[20], model=model))
+    for k in range(20, 20 + RESET_CONFIRMATIONS):
+        account.apply(Scan(stamp=float(stamps[k]), ranges=ranges[k], model=model))
     assert account.counts().rejected == 1
     before = account.given
     # a stray just before a restarted session: one reset, the stray rejected in the new one
