@@ -11,8 +11,8 @@ log's scans at the rate and, every `--path-every` scans, the growing keyframe Pa
 corrected poses (the node's contract: the full estimate each time), as a SLAM back-end would
 publish them. Streaming starts when the node's diagnostics say `ready` (its compiled kernels
 loaded). Printed per node run: its start-up (launch -> ready), keyframes registered / scans
-sent, scans it reports lost or refused (`lost scans`, `poses without scan` and `input problems`
-of /diagnostics), its peak RSS and the time SIGINT takes to end it. Then the update latency
+sent, what became of the scans it received and of those it never received (the scan counts,
+`scans lost by the middleware` and `poses without scan` of /diagnostics), its peak RSS and the time SIGINT takes to end it. Then the update latency
 (arrival of the Path -> verdict published, from ~/report) as median / p99 overall and per
 map-size bucket with the time per stage (monitor update, snapshot, markers, publishing),
 beside the same Path updates through the feed in-process, its scans applied at the stream's
@@ -241,7 +241,7 @@ def stream_to_node(stamps, poses, scans, rate: float, path_every: int, executor:
         while time.monotonic() < settle:
             time.sleep(0.5)
             status = dict(observer.status)
-            registered = int(status.get('scans', 0)) + int(status.get('folded keyframes', 0))
+            registered = int(status.get('keyframes', 0)) + int(status.get('folded scans', 0))
             if registered == count:
                 break
             counts = (registered, status.get('queued scans'), status.get('buffered scans'))
@@ -330,8 +330,9 @@ def run(name: str, rate: float, path_every: int, limit: int | None, reference: b
         print(f'  run {number}' if repeat > 1 else '', end='\n' if repeat > 1 else '')
         reports = print_run(node_run, count)
         latency = np.array([r['update_latency_s'] for r in reports]) * 1e3
-        sizes = np.array([r['keyframes'] for r in reports])  # map size: viewpoints
-        updates += [(ms, r['keyframes'], r['timing']) for ms, r in zip(latency, reports)]
+        sizes = np.array([r['scan_counts']['keyframes'] for r in reports])  # map size: viewpoints
+        updates += [(ms, r['scan_counts']['keyframes'], r['timing'])
+                    for ms, r in zip(latency, reports)]
         explanations += [(r['judged_keyframes'], r['timing']['explanation_s'])
                          for r in node_run.reports if 'explanation_s' in r['timing']]
         run_medians.append(np.median(latency) if latency.size else np.nan)  # nan: no update
@@ -407,30 +408,29 @@ def print_run(node_run: NodeRun, count: int) -> list[dict]:
     newest = max(reports, key=lambda report: report['updates']) if reports else {}
     # the counts from /diagnostics, published every period: a report goes out only when the
     # map changed, and scans folded into a viewpoint at the end change no map
-    keyframes = int(status.get('scans', newest.get('keyframes', 0)))
-    folded = int(status.get('folded keyframes', newest.get('folded_keyframes', 0)))
+    from map_consistency_ros.ros.diagnostics import SCAN_KEYS
+    counts = {key: int(status.get(key, 0)) for key in SCAN_KEYS.values()}
+    keyframes, folded = counts['keyframes'], counts['folded scans']
     print(f'  node start-up (launch -> ready)      {node_run.startup:.2f} s'
           + ('' if node_run.ready else ' (NOT READY: streamed after the 120 s deadline)'))
     print(f'  keyframes registered / scans sent   {keyframes + folded} / {count} '
           f'({keyframes} viewpoints, {folded} folded into them; streamed in '
           f'{node_run.streamed:.1f} s)')
-    print(f'  reported lost                        lost scans {status.get("lost scans")}, '
-          f'poses without scan {status.get("poses without scan")}, '
-          f'missing from stamps {status.get("scans missing from stamps")}, '
-          f'input problems {status.get("input problems")}')
-    waiting = int(status.get('queued scans', 0)) + int(status.get('buffered scans', 0))
-    print(f'  still waiting in the node (behind)   {waiting} scans queued or buffered after '
+    print('  scans received                       ' + ', '.join(
+        f'{key} {value}' for key, value in counts.items() if value))
+    print(f'  never received                       lost by the middleware '
+          f'{status.get("scans lost by the middleware")}, poses without scan '
+          f'{status.get("poses without scan")}, missing from stamps '
+          f'{status.get("scans missing from stamps")}')
+    print(f'  still waiting in the node (behind)   {counts["waiting scans"]} scans after '
           f'{node_run.waited:.0f} s')
-    # A scan the node never registered was lost in its queue (lost scans), lost on the way
-    # (its pose has no scan), refused (an input problem: Intel's raw log stamps some scans
-    # within stamp_tolerance of each other, and the later duplicates a registered one) or is still
-    # waiting. A scan lost in the queue also leaves its pose without scan, so the sum may count
-    # it twice: this checks that nothing goes unreported, not the exact split.
-    reported = (int(status.get('lost scans', 0)) + waiting
-                + int(status.get('poses without scan', 0))
-                + int(status.get('input problems', 0)))
-    honest = keyframes + folded == count or reported >= count - keyframes - folded
-    print(f'  every scan a keyframe or its loss reported: {"yes" if honest else "NO"}')
+    # every scan received is in one category; the scans sent and never received show as
+    # the middleware's losses or as poses without their scan
+    received = counts['scans received']
+    honest = (received == sum(counts.values()) - received
+              and (received == count or int(status.get('poses without scan', 0))
+                   + int(status.get('scans lost by the middleware', 0)) >= count - received))
+    print(f'  every scan accounted for: {"yes" if honest else "NO"}')
     published = newest.get('updates', 0)
     # one report per update (its first): the second stage publishes too, with the figures of
     # the last update

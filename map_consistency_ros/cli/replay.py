@@ -48,11 +48,11 @@ from map_consistency_ros.cli import check, exit_codes, options, plots, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.configuration import Configuration, unknown_parameters
 from map_consistency_ros.core.geometry import ScanSet
-from map_consistency_ros.core.live import (ConsistencyMonitor, FeedSettings, GraphSnapshot,
-                                           KeyframeEstimate, LivePipeline, LiveVerdict,
-                                           LoopClosure, MonitorSettings, MonitorSnapshot,
-                                           NodeEvent, PoseGraphCounts, PoseGraphNodes,
-                                           PoseSample, Scan)
+from map_consistency_ros.core.live import (ConsistencyMonitor, DroppedScans, FeedSettings,
+                                           GraphSnapshot, KeyframeEstimate, LivePipeline,
+                                           LiveVerdict, LoopClosure, MonitorSettings,
+                                           MonitorSnapshot, NodeEvent, PoseGraphCounts,
+                                           PoseGraphNodes, PoseSample, Scan)
 from map_consistency_ros.core.verdict import Assessment
 from map_consistency_ros.io.bags import BadMessage, BagReader, BagTopics
 from map_consistency_ros.io.errors import InputError
@@ -214,6 +214,9 @@ class Replay:
             if isinstance(record, BadMessage):
                 self.stats.warn(f'message {record.index} on {record.topic} ignored: '
                                 f'{record.reason}')
+                if record.topic == self.bag.topics.scan:  # received: it counts (rejected)
+                    self.pipeline.apply(DroppedScans(lost=np.zeros(0),
+                                                     unreadable=np.array([math.nan])))
                 continue
             self._count(record)
             applied = self.pipeline.apply(record)
@@ -423,12 +426,11 @@ def replay_bag(args: argparse.Namespace, bag: BagReader, values: dict | None = N
                    'pose_graphs': replay.stats.pose_graphs,
                    'loop_closures': replay.stats.loop_closures,
                    'constraint_rows': int(monitor.constraints.shape[0]),
-                   'keyframes': snapshot.keyframe_count,
-                   'folded_keyframes': snapshot.folded_scans,
+                   # what became of every scan message (core/live/_scan_counts.py)
+                   'scan_counts': asdict(snapshot.scan_counts),
                    'unmatched_poses': snapshot.unmatched_poses,
-                   'buffered_scans': snapshot.buffered_scans,
+                   'poses_without_scan': snapshot.poses_without_scan,
                    'scans_missing_from_stamps': feed.gap_scans,
-                   'dropped_scans': monitor.dropped_scans,
                    'resets': feed.resets,
                    'seconds': replay.stats.seconds,
                    'bag_seconds_replayed': replay.stats.log_seconds,

@@ -5,14 +5,22 @@ from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+from map_consistency_ros.core.live import ScanCounts
+
 STATUS_NAME = 'map_consistency: map'
+# The key of each ScanCounts field: what became of every scan received (docs/node.md,
+# Diagnostics; received == the sum of the others, core/live/_scan_counts.py)
+SCAN_KEYS = {'received': 'scans received', 'keyframes': 'keyframes', 'folded': 'folded scans',
+             'waiting': 'waiting scans', 'passed_over': 'passed-over scans',
+             'lost_in_queue': 'scans lost in the queue',
+             'pushed_out': 'scans pushed out of the buffer', 'unplaced': 'unplaced scans',
+             'rejected': 'rejected scans', 'earlier_sessions': 'scans of earlier sessions'}
 
 
 @dataclass(frozen=True)
 class MonitorHealth:
     """What the node knows about its map and inputs at one instant."""
 
-    keyframes: int
     buffered_scans: int
     overlapping_pairs: int
     tested_pairs: int
@@ -27,10 +35,12 @@ class MonitorHealth:
     seconds_since_input: float | None  # None when nothing arrived yet, on the node's clock
     stale_timeout: float
     queued_scans: int = 0  # received, not yet applied by the worker (the node is behind)
-    lost_scans: int = 0  # scans the node could not process: DDS losses, full queue or buffer
+    # what became of every scan received, balanced; `keyframes` is this one's keyframes
+    scans: ScanCounts = ScanCounts()
+    middleware_lost: int = 0  # scans the middleware reported lost: never received
     gap_scans: int = 0  # scans missing from the stamp sequence (an estimate)
-    poses_without_scan: int = 0  # keyframe poses older than the newest scan and still unmatched
-    folded_scans: int = 0  # keyframes folded into the previous viewpoint (not lost, not tested)
+    # poses of this session's estimate whose scans never came (older than the newest scan)
+    poses_without_scan: int = 0
     resets: int = 0
     last_reset: str = ''
     verdict: str = ''  # the summary line of both stages, '' before the first verdict
@@ -45,11 +55,23 @@ class MonitorHealth:
     nothing_to_judge: bool = False
 
     @property
+    def keyframes(self) -> int:
+        """Keyframes of the current map."""
+        return self.scans.keyframes
+
+    @property
     def loss(self) -> str:
-        """What was lost, '' when nothing was."""
+        """What was lost since the last reset, '' when nothing was."""
         parts = []
-        if self.lost_scans:
-            parts.append(f'{self.lost_scans} scans lost')
+        scans = self.scans
+        if scans.lost:
+            where = ', '.join(f'{count} {words}' for count, words in (
+                (scans.lost_in_queue, "in the node's full queue"),
+                (scans.pushed_out, 'pushed out of its full buffer before a pose came'),
+                (scans.unplaced, 'without a pose around them')) if count)
+            parts.append(f'{scans.lost} scans lost ({where})')
+        if self.middleware_lost:
+            parts.append(f'{self.middleware_lost} scans lost by the middleware')
         if self.poses_without_scan:
             parts.append(f'{self.poses_without_scan} keyframe poses name scans never received')
         return ', '.join(parts)
@@ -134,8 +156,11 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
     level, message = status_level(health)
     values = {
         'ready': 'failed' if health.start_failure else ('no' if health.starting else 'yes'),
-        'scans': str(health.keyframes),
+        **{key: str(getattr(health.scans, name)) for name, key in SCAN_KEYS.items()},
+        'queued scans': str(health.queued_scans),
         'buffered scans': str(health.buffered_scans),
+        'scans lost by the middleware': str(health.middleware_lost),
+        'poses without scan': str(health.poses_without_scan),
         'overlapping pairs': str(health.overlapping_pairs),
         'tested pairs': str(health.tested_pairs),
         'failed pairs': str(health.failed_pairs),
@@ -149,11 +174,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'input problems': str(health.input_problems),
         'last input problem': health.recent_problem or 'none',
         'seconds since input': _optional(health.seconds_since_input, digits=1),
-        'queued scans': str(health.queued_scans),
-        'lost scans': str(health.lost_scans),
         'scans missing from stamps': str(health.gap_scans),
-        'poses without scan': str(health.poses_without_scan),
-        'folded keyframes': str(health.folded_scans),
         'resets': str(health.resets),
         'last reset': health.last_reset or 'none',
         'second stage failure': health.explanation_failure or 'none',

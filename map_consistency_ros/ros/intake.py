@@ -6,8 +6,12 @@ decoding a long Path never delays a scan. Queued records carry their arrival (ti
 on entering the callback: decoding counts in the update latency). Scans and single poses are
 all kept, in arrival order (the slam_toolbox bridge's association and heading chain depend on
 it), up to the monitor's `max_buffered_scans`; of keyframe estimates and constraints, each the
-full set, only the newest. Every scan the node cannot take is counted (DDS losses, a full
-queue); every bad message is counted, kept for diagnostics and warned about at most once per
+full set, only the newest. Every scan received is counted, and handed on or counted where it
+went: scans dropped from the full queue (their stamps) and unreadable ones are handed to the
+pipeline's account as a DroppedScans record (core/live/_scan_counts.py), so that
+`InputFigures` and a snapshot of the pipeline read before them account for every scan received
+(ScanCounts.with_intake). Scans the middleware reports lost never arrived: counted apart. Every
+bad message is counted, kept for diagnostics and warned about at most once per
 `warning_period` per topic.
 """
 from __future__ import annotations
@@ -25,8 +29,11 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
-from map_consistency_ros.core.live import (Constraints, FeedSettings, GraphSnapshot, PoseSource,
-                                           KeyframeEstimate, PoseSample, Record, Scan)
+import numpy as np
+
+from map_consistency_ros.core.live import (Constraints, DroppedScans, FeedSettings,
+                                           GraphSnapshot, KeyframeEstimate, PoseSample,
+                                           PoseSource, Record, Scan)
 from map_consistency_ros.io import messages
 from map_consistency_ros.ros import slam_toolbox_graph
 from map_consistency_ros.ros.conversions import message_class
@@ -34,7 +41,8 @@ from map_consistency_ros.ros.qos import GRAPH, RELIABLE, SINGLE_POSES, scan_qos
 from map_consistency_ros.core.configuration import NodeSettings, Reliability
 
 # the topic each record comes from, for the input-problem reports
-RECORD_TOPICS = {Scan: 'scan', KeyframeEstimate: 'trajectory', PoseSample: 'pose',
+RECORD_TOPICS = {Scan: 'scan', DroppedScans: 'scan', KeyframeEstimate: 'trajectory',
+                 PoseSample: 'pose',
                  Constraints: 'constraints', GraphSnapshot: 'graph_visualization',
                  **slam_toolbox_graph.RECORD_TOPICS}
 
@@ -46,8 +54,14 @@ class InputFigures:
     last_input: float | None  # the node's clock at the last message, None before any
     problems: int  # bad messages since the start
     last_problem: tuple[str, float]  # (what, when by time.monotonic)
-    lost_scans: int  # reported lost by the middleware or dropped from the full queue
+    middleware_lost: int  # scans the middleware reported lost since the last reset: never received
+    # every scan received (since the start) is queued, handed to the engine, or dropped from
+    # the full queue or unreadable and not handed over yet
+    received_scans: int
     queued_scans: int  # received, not yet taken by the engine
+    handed_scans: int  # handed to the engine: scan records and DroppedScans' counts
+    lost_scans: int  # dropped from the full queue, not handed over yet
+    unreadable_scans: int  # not handed over yet
 
 
 def _deserialized(data: bytes, msgtype: str):
@@ -57,6 +71,15 @@ def _deserialized(data: bytes, msgtype: str):
         return deserialize_message(data, message_class(msgtype))
     except RuntimeError as error:
         raise ValueError(f'undecodable {msgtype} message ({error})') from None
+
+
+def _header_stamp(msg) -> float:
+    """The header stamp of a scan message that could not be read, in seconds; NaN when that
+    is unreadable too (a pose naming the scan is then taken for one whose scan never came)."""
+    try:
+        return messages.stamp_to_seconds(msg.header.stamp)
+    except (AttributeError, TypeError, ValueError):
+        return math.nan
 
 
 class Intake:
@@ -90,7 +113,10 @@ class Intake:
         self._last_problem = ('', -math.inf)
         self._warned: dict[str, float] = {}
         self._dds_lost = 0  # scans the middleware reported lost
-        self._queue_lost = 0  # scans dropped from the full queue
+        self._received = 0  # scan messages received
+        self._handed = 0  # of those, handed to the engine (InputFigures.handed_scans)
+        self._lost: list[float] = []  # stamps of scans dropped from the full queue, not handed
+        self._unreadable: list[float] = []  # header stamps of unreadable scans, not handed
 
     def subscribe(self) -> None:
         """Create the subscriptions of the pose source (docs/node.md, Inputs)."""
@@ -138,11 +164,19 @@ class Intake:
 
         Returns
         -------
-        (arrival by time.monotonic, record) of every queued record: scans, then single poses,
-        each in arrival order, then the newest constraints and keyframe estimate.
+        (arrival by time.monotonic, record) of every queued record: the scans dropped since
+        the last take (one DroppedScans, when there were), scans, then single poses, each in
+        arrival order, then the newest constraints and keyframe estimate.
         """
         with self._lock:
             records = list(self._scans) + list(self._poses)
+            self._handed += len(self._scans)
+            if self._lost or self._unreadable:
+                dropped = DroppedScans(lost=np.array(self._lost),
+                                       unreadable=np.array(self._unreadable))
+                records.insert(0, (time.monotonic(), dropped))
+                self._handed += len(self._lost) + len(self._unreadable)
+                self._lost, self._unreadable = [], []
             self._scans.clear()
             self._poses.clear()
             for latest in (self._constraints, self._estimate):
@@ -181,22 +215,27 @@ class Intake:
             self.problem(topic, warning)
 
     def forget_losses(self) -> None:
-        """Start counting lost scans afresh (a reset: a new session)."""
+        """Start counting the scans the middleware lost afresh (a reset: a new session; the
+        pipeline's account keeps the node's own losses by session)."""
         with self._lock:
-            self._dds_lost = self._queue_lost = 0
+            self._dds_lost = 0
 
     def figures(self) -> InputFigures:
         """The intake's figures now.
 
         Returns
         -------
-        The InputFigures: last input, bad messages, lost and queued scans.
+        The InputFigures: last input, bad messages, scans received, queued, handed over,
+        dropped or unreadable, and lost by the middleware. One instant: received ==
+        queued + handed + lost + unreadable.
         """
         with self._lock:
             return InputFigures(last_input=self._last_input, problems=self._problems,
                                 last_problem=self._last_problem,
-                                lost_scans=self._dds_lost + self._queue_lost,
-                                queued_scans=len(self._scans))
+                                middleware_lost=self._dds_lost, received_scans=self._received,
+                                queued_scans=len(self._scans), handed_scans=self._handed,
+                                lost_scans=len(self._lost),
+                                unreadable_scans=len(self._unreadable))
 
     # -- callbacks (cheap: convert and queue) ------------------------------------------------
 
@@ -231,13 +270,14 @@ class Intake:
         """
         arrival = time.monotonic()
         record = self._convert('scan', messages.SCAN_TYPE, msg)
-        if record is None:
-            return
         with self._lock:
-            if len(self._scans) >= self._queue_limit:
-                self._scans.popleft()
-                self._queue_lost += 1
-            self._scans.append((arrival, record))
+            self._received += 1
+            if record is None:
+                self._unreadable.append(_header_stamp(msg))
+            else:
+                if len(self._scans) >= self._queue_limit:
+                    self._lost.append(self._scans.popleft()[1].stamp)
+                self._scans.append((arrival, record))
         self._wake.set()
 
     def _on_scans_lost(self, info) -> None:

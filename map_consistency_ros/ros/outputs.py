@@ -145,8 +145,13 @@ class Outputs:
         inputs = self._intake.figures()
         problem, when = inputs.last_problem
         stale_timeout = self._settings.stale_timeout
+        # the snapshot, read before the intake's figures, holds only scans handed over by then
+        scans = snapshot.scan_counts.with_intake(
+            received=inputs.received_scans, queued=inputs.queued_scans,
+            handed=inputs.handed_scans, lost_in_queue=inputs.lost_scans,
+            unreadable=inputs.unreadable_scans)
         return MonitorHealth(
-            keyframes=snapshot.keyframe_count, buffered_scans=snapshot.buffered_scans,
+            scans=scans, buffered_scans=snapshot.buffered_scans,
             overlapping_pairs=0 if result is None else result.overlapping_pair_count,
             tested_pairs=0 if result is None else result.tested_pair_count,
             failed_pairs=0 if result is None else result.failed_pair_count,
@@ -162,9 +167,8 @@ class Outputs:
             seconds_since_input=(None if inputs.last_input is None
                                  else max(now - inputs.last_input, 0.0)),
             stale_timeout=stale_timeout, queued_scans=inputs.queued_scans,
-            lost_scans=inputs.lost_scans + snapshot.dropped_scans, gap_scans=feed.gap_scans,
-            poses_without_scan=snapshot.poses_without_scan,
-            folded_scans=snapshot.folded_scans, resets=feed.resets,
+            middleware_lost=inputs.middleware_lost, gap_scans=feed.gap_scans,
+            poses_without_scan=snapshot.poses_without_scan, resets=feed.resets,
             last_reset=feed.last_reset, starting=not engine.ready,
             start_failure=engine.start_failure,
             explanation_failure=engine.explanation_failure,
@@ -175,11 +179,11 @@ class Outputs:
         the verdict's report of the CLI, scans named by their stamps, then the node's own
         figures. The verdict's part is kept as text (_verdict_report): its lists of scans
         grow with the map, and every update publishes a report."""
-        snapshot = self._engine.snapshot
+        health = self.health()
         figures = dict(update_latency_s=self.latency, updates=self.updates, phi=self.phi,
-                       timing=self.timing, lost_scans=self.health().lost_scans,
-                       keyframes=snapshot.keyframe_count,
-                       folded_keyframes=snapshot.folded_scans)
+                       timing=self.timing, scan_counts=asdict(health.scans),
+                       scans_lost_by_middleware=health.middleware_lost,
+                       poses_without_scan=health.poses_without_scan)
         bridge_counts = self._engine.pipeline.feed.bridge_counts
         if bridge_counts is not None:
             figures['slam_toolbox_bridge'] = asdict(bridge_counts)

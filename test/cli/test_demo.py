@@ -10,7 +10,7 @@ def test_demo_replays_the_bundled_bag(strict_json, tmp_path, capsys):
     assert code == (0 if report['verdict'] == 'consistent' else 1)
     # 290 keyframes, those within 0.4 m and 0.4 rad of the previous one folded into it
     viewpoints = report['summary']['scans']
-    assert viewpoints + report['replay']['folded_keyframes'] == 290 and viewpoints > 250
+    assert viewpoints + report['replay']['scan_counts']['folded'] == 290 and viewpoints > 250
     assert 'intel_demo.mcap' in out and f'scans                 {viewpoints}' in out
     for name in ('map.png', 'psi.png', 'pairs.csv'):
         assert (tmp_path / name).stat().st_size > 0

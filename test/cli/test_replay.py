@@ -84,9 +84,10 @@ def test_round_trip_verdict(strict_json, round_trip):
     np.testing.assert_allclose(replay_report['scans']['scale'], check_report['scans']['scale'],
                                rtol=1e-4)
     # both test the same viewpoints; the other keyframes are folded into them
-    assert replay_report['replay']['keyframes'] == check_report['summary']['scans']
-    assert (replay_report['replay']['keyframes'] + replay_report['replay']['folded_keyframes']
-            == ROUND_TRIP_SCANS == check_report['laser_records'])
+    counts = replay_report['replay']['scan_counts']
+    assert counts['keyframes'] == check_report['summary']['scans']
+    assert (counts['keyframes'] + counts['folded'] == counts['received'] == ROUND_TRIP_SCANS
+            == check_report['laser_records'])
     assert replay_report['replay']['warnings'] == []
     assert (folder / 'map.png').read_bytes()[:4] == b'\x89PNG'
     assert (folder / 'psi.png').read_bytes()[:4] == b'\x89PNG'
@@ -150,7 +151,7 @@ def test_odometry_bag_cli(strict_json, intel_odometry, tmp_path, capsys):
     out = capsys.readouterr().out
     report = strict_json((tmp_path / 'r.json').read_text())
     assert code == (0 if report['verdict'] == 'consistent' else 1)
-    assert report['replay']['keyframes'] == intel_odometry[1].keyframe_count
+    assert report['replay']['scan_counts']['keyframes'] == intel_odometry[1].keyframe_count
     assert 'scans/s' in out and "the bag's real time" in out
 
 
@@ -355,7 +356,7 @@ def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop
         last = deserialize_message(received['/trajectory'][-1][1], Path).header.stamp
         # ... its keyframes judged as viewpoints or folded into them
         assert judged[0] == last.sec + last.nanosec * 1e-9
-        assert judged[1] + report['replay']['folded_keyframes'] == ROUND_TRIP_SCANS
+        assert judged[1] + report['replay']['scan_counts']['folded'] == ROUND_TRIP_SCANS
         reports = listener.received['/map_consistency/report']
 
         def node_report_on_that_map():

@@ -61,7 +61,8 @@ def test_replay_gives_the_verdict_of_check_on_the_graph_poses(strict_json, graph
     summary.pop('candidate_pairs'), expected.pop('candidate_pairs')
     assert summary == expected
     assert report['summary_line'] == check_report['summary_line']
-    assert report['replay']['keyframes'] + report['replay']['folded_keyframes'] == count
+    counts = report['replay']['scan_counts']
+    assert counts['keyframes'] + counts['folded'] == count
 
 
 def test_the_graph_headings_decide_the_verdict(strict_json, graph_bag, rotated_graph_stream,
@@ -91,7 +92,7 @@ def test_estimates_wait_for_the_graph_of_a_loop_closure(strict_json, slam_toolbo
     assert report['slam_toolbox_bridge']['keyframes'] == stream.graph_after + 1
     # the map judged is the last one before the closure: nodes 0 .. loop - 1
     assert report['judged_stamp'] == stream.stamps[stream.loop - 1]
-    assert report['judged_keyframes'] + report['replay']['folded_keyframes'] == stream.loop
+    assert report['judged_keyframes'] + report['replay']['scan_counts']['folded'] == stream.loop
 
 
 def test_bag_holds_slam_toolbox_messages_from_the_shipped_definitions(graph_bag,

@@ -82,7 +82,8 @@ class NodeUnderTest:
         found = same_map()
         if found is None:
             seen = [(content.get('judged_stamp'), content.get('judged_keyframes'),
-                     content.get('keyframes')) for content in list(self.reports)[-5:]]
+                     content.get('scan_counts', {}).get('keyframes'))
+                    for content in list(self.reports)[-5:]]
             pytest.fail(f'the node never judged the map replay judged {judged}; its last '
                         f'reports judged (stamp, keyframes) with keyframes: {seen}')
         return code, report, found

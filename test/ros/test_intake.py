@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from map_consistency_ros.core.configuration import NodeSettings
-from map_consistency_ros.core.live import Constraints, FeedSettings, KeyframeEstimate, Scan
+from map_consistency_ros.core.live import (Constraints, DroppedScans, FeedSettings,
+                                           KeyframeEstimate, Scan)
 from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.ros import intake as intake_module
 from map_consistency_ros.ros.intake import Intake
@@ -56,3 +57,44 @@ def test_an_input_arrives_when_its_callback_begins_so_decoding_counts_in_the_lat
     assert all(record is records[topic] for (_, record), topic in
                zip(taken, ('scan', 'constraints', 'trajectory')))
     assert clock.seconds == 106.0
+
+
+def test_every_scan_received_is_queued_handed_or_handed_on_as_dropped(monkeypatch):
+    """A full queue drops its oldest scans and unreadable scans are refused; both reach the
+    pipeline's account as one DroppedScans record, and the figures add up at every step."""
+    model = SensorModel(angle_min=-1.0, angle_increment=0.5, max_range=10.0)
+
+    def convert(msgtype, msg, max_range):
+        if msg.ranges == 1:
+            raise ValueError('scan has 1 ranges; at least 2 are needed')
+        return Scan(stamp=msg.header.stamp.sec, ranges=np.ones(5), model=model)
+
+    def message(stamp: int, ranges: int = 5) -> SimpleNamespace:
+        return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=stamp,
+                                                                            nanosec=0)),
+                               ranges=ranges)
+
+    monkeypatch.setattr(intake_module.messages, 'to_record', convert)
+    node = _node()
+    node.get_logger = lambda: SimpleNamespace(warning=lambda text: None)
+    intake = Intake(node, NodeSettings(), FeedSettings(), 3, threading.Event())
+
+    def balanced() -> None:
+        figures = intake.figures()
+        assert figures.received_scans == (figures.queued_scans + figures.handed_scans
+                                          + figures.lost_scans + figures.unreadable_scans)
+
+    for scan in (message(1), message(2), message(9, ranges=1), message(3), message(4),
+                 message(5)):
+        intake._on_scan(scan)
+        balanced()
+    figures = intake.figures()
+    assert (figures.received_scans, figures.queued_scans, figures.lost_scans,
+            figures.unreadable_scans) == (6, 3, 2, 1)
+    taken = [record for _, record in intake.take()]
+    balanced()
+    assert isinstance(taken[0], DroppedScans) and taken[0].unreadable.tolist() == [9.0]
+    assert taken[0].lost.tolist() == [1.0, 2.0]
+    assert [record.stamp for record in taken[1:]] == [3.0, 4.0, 5.0]
+    assert intake.figures().handed_scans == 6
+    assert len(intake.take()) == 0  # nothing dropped since: no record

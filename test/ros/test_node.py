@@ -226,7 +226,7 @@ def _reset(probe: Probe) -> None:
     """The node back to an empty map; later arrays and verdicts are the new session's."""
     resets = int(_wait(lambda: probe.status_value('resets'), what='a status with the resets'))
     assert probe.call(probe.reset).success
-    _wait(lambda: probe.status_value('scans') == '0'
+    _wait(lambda: probe.status_value('keyframes') == '0'
           and int(probe.status_value('resets')) > resets, what='the reset in the diagnostics')
     probe.markers.clear()
     probe.consistent.clear()
@@ -240,7 +240,7 @@ def mapped(probe, intel):
     log, model = intel
     _publish_scans(probe, log, model, range(SCANS))
     _publish_path(probe, log.timestamps[:SCANS], log.laser_poses[:SCANS])
-    _wait(lambda: probe.status_value('scans') == str(SCANS), what=f'{SCANS} keyframes')
+    _wait(lambda: probe.status_value('keyframes') == str(SCANS), what=f'{SCANS} keyframes')
     _wait(lambda: probe.consistent and probe.consistent[-1] is True, what='consistent = true')
     return probe
 
@@ -336,7 +336,7 @@ def test_consistent_map_from_late_and_early_scans(probe, intel):
     _wait(lambda: probe.status_value('unmatched poses') == '10', what='10 poses awaiting scans')
     _publish_scans(probe, log, model, range(40, SCANS))
     _publish_path(probe, stamps, poses)
-    _wait(lambda: probe.status_value('scans') == str(SCANS), what=f'{SCANS} keyframes')
+    _wait(lambda: probe.status_value('keyframes') == str(SCANS), what=f'{SCANS} keyframes')
     _wait(lambda: probe.consistent and probe.consistent[-1] is True, what='consistent = true')
     status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.OK and s,
                    what='diagnostics OK')
@@ -383,7 +383,7 @@ def test_bad_input_warns_without_losing_state(mapped, intel):
     status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.WARN
                    and s, what='diagnostics WARN')
     assert 'bad input' in status.message
-    assert probe.status_value('scans') == str(SCANS)
+    assert probe.status_value('keyframes') == str(SCANS)
     assert node_alive(probe)
 
 
@@ -402,7 +402,7 @@ def test_absurd_poses_are_skipped_and_counted(mapped, intel):
     probe.trajectory.publish(absurd)
     _wait(lambda: int(probe.status_value('input problems')) >= problems + 2,
           what='two skipped poses counted')
-    assert probe.status_value('scans') == str(SCANS)
+    assert probe.status_value('keyframes') == str(SCANS)
     assert probe.status_value('inconsistent scans') == '0'  # the two kept their last pose
 
 
@@ -417,7 +417,7 @@ def test_a_path_the_byte_reader_cannot_read_is_deserialized(mapped, intel):
     probe.trajectory.publish(uneven)
     _wait(lambda: int(probe.status_value('input problems')) >= problems + 1,
           what='the absurd pose counted')
-    assert probe.status_value('scans') == str(SCANS)
+    assert probe.status_value('keyframes') == str(SCANS)
 
 
 def test_wrong_loop_closure_turns_the_map_inconsistent(strict_json, mapped, intel):
@@ -459,7 +459,7 @@ def test_wrong_loop_closure_turns_the_map_inconsistent(strict_json, mapped, inte
     assert report['paper_consistent'] is False
     # every update that changed the map is counted, and its latency is a plausible wait
     assert report['updates'] >= 2 and 0.0 < report['update_latency_s'] < TIMEOUT
-    assert report['keyframes'] == SCANS
+    assert report['scan_counts']['keyframes'] == SCANS
     assert report['summary_line'] == oracle.summary_line()
     assert report['misaligned_scans'] == pytest.approx(stamps[oracle.flagged].tolist())
     (region,) = report['misalignments']
@@ -565,14 +565,14 @@ def test_reset_service_and_automatic_reset_on_a_stamp_jump(mapped, intel):
     resets = int(probe.status_value('resets'))
     response = probe.call(probe.reset)
     assert response.success and response.message == f'reset: {SCANS} keyframes forgotten'
-    _wait(lambda: probe.status_value('scans') == '0'
+    _wait(lambda: probe.status_value('keyframes') == '0'
           and probe.status_value('resets') == str(resets + 1),
           what='no keyframes after the reset, counted')
     # the same session again is accepted (no duplicate stamps after a reset)
     stamps, poses = log.timestamps[:SCANS], log.laser_poses[:SCANS]
     _publish_scans(probe, log, model, range(SCANS))
     _publish_path(probe, stamps, poses)
-    _wait(lambda: probe.status_value('scans') == str(SCANS), what='the map rebuilt')
+    _wait(lambda: probe.status_value('keyframes') == str(SCANS), what='the map rebuilt')
     # a SLAM stack restarting with earlier stamps: the node resets by itself
     for index in range(6):
         probe.scan.publish(messages.scan_message(message_class, stamps[index] - 100.0,
@@ -580,7 +580,7 @@ def test_reset_service_and_automatic_reset_on_a_stamp_jump(mapped, intel):
         time.sleep(0.004)
     _wait(lambda: probe.status_value('resets') == str(resets + 2), what='an automatic reset')
     assert 'scan stamps jumped back' in probe.status_value('last reset')
-    _wait(lambda: probe.status_value('scans') == '0'
+    _wait(lambda: probe.status_value('keyframes') == '0'
           and probe.status_value('buffered scans') == '6',
           what='the new session buffered, no keyframes of the old one')
 

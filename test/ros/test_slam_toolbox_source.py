@@ -69,7 +69,7 @@ def test_slam_toolbox_source_matches_replay(slam_toolbox_stream, tmp_path, node_
     assert report['slam_toolbox_bridge']['keyframes'] == count
     assert report['slam_toolbox_bridge']['vertices_without_pose'] == 0
     # every vertex is a keyframe; those close to the previous viewpoint are folded into it
-    assert expected['scans'] + replayed['folded_keyframes'] == count
+    assert expected['scans'] + replayed['scan_counts']['folded'] == count
     assert expected['inconsistent_scans'] > 0  # the paper's test sees the wrong loop closure
     assert node_report.get('slam_toolbox_bridge') == report['slam_toolbox_bridge']
     node_agrees(node_report, report, code)

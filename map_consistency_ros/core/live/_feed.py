@@ -9,12 +9,17 @@ record did, including every warning, so the node and replay report the same prob
   `ScanGaps`) and the automatic reset: RESET_CONFIRMATIONS scans in a row stamped more than
   `reset_stamp_jump` seconds before the newest one mean the SLAM stack restarted or the bag
   looped (one stray old stamp must not wipe the map: such scans are held until confirmed,
-  and skipped with a warning when a scan of the current session follows).
+  and skipped with a warning once RESET_CONFIRMATIONS scans of the current session in a row
+  follow; a stray that comes just before the new session's scans is skipped too, and the
+  session confirmed by its own scans: `_session_start`).
 - `KeyframeEstimate`: the back-end's full keyframe estimate (a Path, or the output of a bridge
   from a SLAM stack's own graph messages: apply its keyframe stamps and poses here).
 - `PoseSample`: one pose of a single-pose topic; `PoseKeyframer` interpolates each scan's pose
   and selects keyframes by travelled distance / turned angle, as a SLAM front end would.
 - `Constraints`: the pose-graph edges for DCS retuning.
+- `DroppedScans`: scans received but never applied (a full queue, unreadable messages), so
+  that the account of every scan received (`scan_counts`, core/live/_scan_counts.py) holds
+  them too.
 - With `pose_source: slam_toolbox`, `PoseSample`s (slam_toolbox's `pose`, one per accepted
   scan) and `GraphSnapshot`s (its graph_visualization markers) go to the SlamToolboxBridge
   (core/live/_graph_bridge.py); after each snapshot the bridge's keyframes are applied as a
@@ -44,9 +49,10 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.live._graph_bridge import BridgeCounts, SlamToolboxBridge
 from map_consistency_ros.core.live._pose_graph_bridge import PoseGraphBridge, PoseGraphCounts
-from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot, KeyframeEstimate,
-                                                    LoopClosure, NodeEvent, PoseGraphNodes,
-                                                    PoseSample, Record, Scan)
+from map_consistency_ros.core.live._records import (Constraints, DroppedScans, GraphSnapshot,
+                                                    KeyframeEstimate, LoopClosure, NodeEvent,
+                                                    PoseGraphNodes, PoseSample, Record, Scan)
+from map_consistency_ros.core.live._scan_counts import ScanCounts
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
                                                    UpdateSummary)
 from map_consistency_ros.core.parameters import Choice, Settings, parameter
@@ -126,9 +132,10 @@ class PoseKeyframer:
     """Keyframes from single-pose messages and the scans between them.
 
     Each scan takes the pose interpolated at its stamp between the two pose messages around
-    it (scans outside the pose stream are dropped and counted). A scan becomes a keyframe when
-    the robot has moved `min_distance` metres or turned `min_angle` radians since the last
-    keyframe. `add_pose` returns the scans that became keyframes.
+    it (scans outside the pose stream are dropped and counted in `unplaced`). A scan becomes a
+    keyframe when the robot has moved `min_distance` metres or turned `min_angle` radians since
+    the last keyframe (the others are counted in `passed_over`). `add_pose` returns the scans
+    that became keyframes; every scan added is pending (`waiting`), returned or counted.
     """
 
     def __init__(self, min_distance: float, min_angle: float, history: int = 256) -> None:
@@ -141,7 +148,13 @@ class PoseKeyframer:
         self._last: np.ndarray | None = None
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
-        self.dropped = 0
+        self.unplaced = 0  # no pose before or around their stamps
+        self.passed_over = 0  # the robot had not moved far enough since the last keyframe
+
+    @property
+    def waiting(self) -> int:
+        """Scans held until a pose at or after their stamps arrives."""
+        return len(self._pending)
 
     def add_scan(self, scan: Scan) -> None:
         """Hold a scan until a pose at or after its stamp arrives (`add_pose`).
@@ -172,12 +185,14 @@ class PoseKeyframer:
             scan = self._pending.popleft()
             pose = self._interpolate(scan.stamp)
             if pose is None:
-                self.dropped += 1
+                self.unplaced += 1
             elif self._is_keyframe(pose):
                 self._last = pose
                 self.stamps.append(scan.stamp)
                 self.poses.append(pose)
                 keyframes.append(scan)
+            else:
+                self.passed_over += 1
         return keyframes
 
     def _interpolate(self, stamp: float) -> np.ndarray | None:
@@ -269,6 +284,34 @@ class ScanGaps:
         return missing
 
 
+def _session_start(held: list[Scan], jump: float) -> int:
+    """Where a new session begins among scans held after a jump back in stamps.
+
+    A stray old scan (a late one of the ending session) may come just before a restarted
+    SLAM stack's first scans: those then jump back from it as they jumped back from the
+    session. The new session is the longest tail of `held` in which no scan is stamped more
+    than `jump` before an earlier one of the tail; the scans before it are strays.
+
+    Parameters
+    ----------
+    held: the held scans, in arrival order.
+    jump: reset_stamp_jump, seconds (positive).
+
+    Returns
+    -------
+    The index in `held` of the new session's first scan (0: no stray).
+    """
+    first, oldest_after = len(held), math.inf
+    for index in range(len(held) - 1, -1, -1):
+        # held[index:] is jump-free when held[index + 1:] is and no scan of it jumps back
+        # from held[index]
+        stamp = held[index].stamp
+        if oldest_after < stamp - jump:
+            break
+        first, oldest_after = index, min(oldest_after, stamp)
+    return first
+
+
 @dataclass(frozen=True)
 class Applied:
     """What one record did: the update (None when the map did not change), its warnings,
@@ -290,6 +333,8 @@ class MonitorFeed:
         self.settings = settings or FeedSettings()
         self.resets = 0
         self.last_reset = ''
+        self._received = 0  # scans received since the start (scan records and DroppedScans)
+        self._earlier = 0  # of those, the scans received before the last reset
         self._start()
 
     def _start(self) -> None:
@@ -303,19 +348,53 @@ class MonitorFeed:
         self.gaps = ScanGaps()
         self._newest_scan = -math.inf
         self._jumped: list[Scan] = []  # scans of a possible new session, awaiting confirmation
+        self._current = 0  # scans of the current session in a row since the last one held
+        self._rejected = 0  # scans of this session refused as bad input
+        self._lost_in_queue = 0  # scans of this session dropped from a full queue
         self.estimate_stamp = math.nan  # (module docstring) NaN before any estimate
         self._taken_stamp = math.nan  # the newest estimate the monitor took
 
     def reset(self, reason: str) -> None:
-        """Forget every scan, keyframe and constraint (a new SLAM session).
+        """Forget every scan, keyframe and constraint (a new SLAM session); the scans received
+        so far count as `earlier_sessions` from now on.
 
         Parameters
         ----------
         reason: why, kept as `last_reset`.
         """
+        self._reset(reason, carried=0)
+
+    def _reset(self, reason: str, carried: int) -> None:
+        """reset(reason), the last `carried` scans received belonging to the new session (they
+        confirmed it and are applied after)."""
         self.resets += 1
         self.last_reset = reason
+        self._earlier = self._received - carried
         self._start()
+
+    def scan_counts(self, monitor_counts: dict[str, int] | None = None) -> ScanCounts:
+        """What became of every scan received since the start (core/live/_scan_counts.py).
+
+        Parameters
+        ----------
+        monitor_counts: the monitor's `counts()` now, when the caller has them (else read).
+
+        Returns
+        -------
+        The ScanCounts, balanced.
+        """
+        counts = self.monitor.counts() if monitor_counts is None else monitor_counts
+        keyframer = self.keyframer
+        return ScanCounts(
+            received=self._received, keyframes=self.monitor.keyframe_count,
+            folded=counts['folded_scans'],
+            waiting=(len(self._jumped) + counts['buffered_scans']
+                     + (0 if keyframer is None else keyframer.waiting)),
+            passed_over=(counts['passed_over_scans']
+                         + (0 if keyframer is None else keyframer.passed_over)),
+            lost_in_queue=self._lost_in_queue, pushed_out=counts['pushed_out_scans'],
+            unplaced=0 if keyframer is None else keyframer.unplaced,
+            rejected=self._rejected, earlier_sessions=self._earlier)
 
     @property
     def gap_scans(self) -> int:
@@ -348,7 +427,14 @@ class MonitorFeed:
         when it reset the monitor.
         """
         if isinstance(record, Scan):
+            self._received += 1
             return self._scan(record)
+        if isinstance(record, DroppedScans):
+            self._received += len(record.lost) + len(record.unreadable)
+            self._lost_in_queue += len(record.lost)
+            self._rejected += len(record.unreadable)
+            self.monitor.note_not_kept(np.concatenate([record.lost, record.unreadable]))
+            return Applied()
         if isinstance(record, KeyframeEstimate):
             if self.settings.pose_source != PoseSource.PATH:
                 return Applied(warnings=('a keyframe estimate was given while pose_source is '
@@ -391,22 +477,38 @@ class MonitorFeed:
         jump = self.settings.reset_stamp_jump
         if jump > 0.0 and scan.stamp < self._newest_scan - jump:
             self._jumped.append(scan)
-            if len(self._jumped) < RESET_CONFIRMATIONS:
+            self._current = 0
+            first = _session_start(self._jumped, jump)
+            if len(self._jumped) - first < RESET_CONFIRMATIONS:
                 return Applied()
-            held, back = self._jumped, self._newest_scan - self._jumped[0].stamp
-            reason = (f'scan stamps jumped back {back:.1f} s (more than reset_stamp_jump = '
-                      f'{jump:g} s) for {len(held)} scans: a new session')
-            self.reset(reason)
-            applied = [self._add_scan(held_scan) for held_scan in held]
+            newest, strays = self._newest_scan, self._jumped[:first]
+            session = self._jumped[first:]
+            reason = (f'scan stamps jumped back {newest - session[0].stamp:.1f} s (more than '
+                      f'reset_stamp_jump = {jump:g} s) for {len(session)} scans: a new session')
+            self._reset(reason, carried=len(self._jumped))
+            skipped = self._skipped(strays, newest)
+            applied = [self._add_scan(held_scan) for held_scan in session]
             return Applied(summary=next((a.summary for a in reversed(applied) if a.summary),
                                         None),
-                           warnings=tuple(w for a in applied for w in a.warnings), reset=reason)
-        stray = tuple(f'scan at {held.stamp:.6f} skipped: stamped more than reset_stamp_jump '
-                      f'before the newest scan ({self._newest_scan:.6f})'
-                      for held in self._jumped)
-        self._jumped = []
+                           warnings=skipped + tuple(w for a in applied for w in a.warnings),
+                           reset=reason)
+        skipped = ()
+        self._current += 1
+        if self._jumped and self._current >= RESET_CONFIRMATIONS:
+            # the session goes on: the held scans were strays (one late scan of the session
+            # among a restarted stack's first scans does not make them strays)
+            skipped = self._skipped(self._jumped, self._newest_scan)
+            self._jumped = []
         applied = self._add_scan(scan)
-        return Applied(summary=applied.summary, warnings=stray + applied.warnings)
+        return Applied(summary=applied.summary, warnings=skipped + applied.warnings)
+
+    def _skipped(self, scans: list[Scan], newest: float) -> tuple[str, ...]:
+        """Held scans skipped as strays, each older than `newest` by more than
+        reset_stamp_jump: counted as rejected, and their warnings."""
+        self._rejected += len(scans)
+        self.monitor.note_not_kept([scan.stamp for scan in scans])
+        return tuple(f'scan at {held.stamp:.6f} skipped: stamped more than reset_stamp_jump '
+                     f'before the newest scan ({newest:.6f})' for held in scans)
 
     def _add_scan(self, scan: Scan) -> Applied:
         self._newest_scan = max(self._newest_scan, scan.stamp)
@@ -417,6 +519,7 @@ class MonitorFeed:
         try:
             self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
         except ValueError as error:
+            self._rejected += 1
             return Applied(warnings=(f'scan at {scan.stamp:.6f} skipped: {error}',))
         return self._update(self.monitor.refresh) if self.monitor.pending else Applied()
 
@@ -523,6 +626,7 @@ class MonitorFeed:
             try:
                 self.monitor.add_scan(scan.stamp, scan.ranges, scan.model)
             except ValueError as error:
+                self._rejected += 1
                 warnings.append(f'scan at {scan.stamp:.6f} skipped: {error}')
         if not placed:
             return Applied(warnings=tuple(warnings))

@@ -95,5 +95,16 @@ class LoopClosure:
     stamp: float
 
 
+@dataclass(frozen=True)
+class DroppedScans:
+    """Scans received but never applied as Scan records, counted in the pipeline's account
+    (core/live/_scan_counts.py): `lost` (L,) the stamps of scans dropped from a full queue, and
+    `unreadable` (U,) the header stamps of scan messages that no record could be made of
+    (rejected; NaN where the stamp was unreadable too)."""
+
+    lost: np.ndarray
+    unreadable: np.ndarray
+
+
 Record = (Scan | KeyframeEstimate | PoseSample | Constraints | GraphSnapshot | NodeEvent
-          | PoseGraphNodes | LoopClosure)
+          | PoseGraphNodes | LoopClosure | DroppedScans)

@@ -1,8 +1,10 @@
 """The scans waiting for a trajectory to name their pose, bounded.
 
-Invariants: at most `capacity` scans are held, by stamp; beyond it the oldest stamp is dropped
-and counted in `dropped`; `newest` is the newest stamp ever added (it does not fall when scans
-leave).
+Invariants: at most `capacity` scans are held, by stamp; beyond it the oldest stamp is pushed
+out and counted, in `passed_over` when the estimate had gone past its stamp without naming it
+(the pose source made no keyframe of it), else in `pushed_out` (lost: no pose had reached it
+yet); every scan added is held, popped or counted in one of those; `newest` is the newest stamp
+ever added (it does not fall when scans leave).
 """
 from __future__ import annotations
 
@@ -20,7 +22,8 @@ class ScanBuffer:
     def __init__(self, capacity: int, tolerance: float) -> None:
         self.capacity = capacity
         self.tolerance = tolerance
-        self.dropped = 0  # pushed out of the full buffer
+        self.pushed_out = 0  # pushed out of the full buffer before any pose reached them
+        self.passed_over = 0  # pushed out after the estimate went past them (module docstring)
         self.newest = -math.inf
         self._scans: OrderedDict[float, np.ndarray] = OrderedDict()
 
@@ -30,19 +33,35 @@ class ScanBuffer:
     def __contains__(self, stamp: float) -> bool:
         return stamp in self._scans
 
-    def add(self, stamp: float, ranges: np.ndarray) -> None:
+    def add(self, stamp: float, ranges: np.ndarray, reached: float = -math.inf) -> list[float]:
         """Hold one scan; the oldest go when more than `capacity` are held.
 
         Parameters
         ----------
-        stamp: the scan's stamp, seconds (a scan already held at it is replaced).
+        stamp: the scan's stamp, seconds, not held yet (ValueError otherwise: the caller
+            refuses the scan, so that it is counted once).
         ranges: (K,) its ranges, metres.
+        reached: the newest pose stamp of the estimate: a scan pushed out that is older
+            (beyond `tolerance`) was passed over, not lost.
+
+        Returns
+        -------
+        The stamps of the scans pushed out as lost (`pushed_out`), usually none.
         """
+        if stamp in self._scans:
+            raise ValueError(f'scan at {stamp:.6f} duplicates a buffered scan\'s stamp; ignored')
         self._scans[stamp] = ranges
         self.newest = max(self.newest, stamp)
+        lost = []
         while len(self._scans) > self.capacity:
-            self._scans.pop(min(self._scans))
-            self.dropped += 1
+            oldest = min(self._scans)
+            self._scans.pop(oldest)
+            if oldest < reached - self.tolerance:
+                self.passed_over += 1
+            else:
+                self.pushed_out += 1
+                lost.append(oldest)
+        return lost
 
     def peek(self, stamp: float) -> np.ndarray:
         """A held scan, left in the buffer.

@@ -45,11 +45,16 @@ from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair
 from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
 from map_consistency_ros.core.live._placement import Placement
 from map_consistency_ros.core.live._scan_buffer import ScanBuffer
+from map_consistency_ros.core.live._scan_counts import ScanCounts
 from map_consistency_ros.core.parameters import Settings, parameter
 
 # Batches of at most this many pairs keep a live node's shutdown responsive during a large
 # update (a loop closure, a burst of keyframes).
 MEASURE_CHUNK = 1024
+# The stamps of scans refused or lost that the monitor remembers (the newest; 0.8 MB), so that
+# the poses naming them are not taken for poses whose scans never came: bounded, as scans may
+# be refused all along (a second laser on the topic).
+NOT_KEPT_LIMIT = 100_000
 
 
 @dataclass(frozen=True)
@@ -108,10 +113,15 @@ class MonitorSnapshot:
     buffered_scans: int = 0
     unmatched_poses: int = 0
     last_update: UpdateSummary = field(default_factory=UpdateSummary)
-    dropped_scans: int = 0  # pushed out of the full buffer before a pose named them
-    poses_without_scan: int = 0  # unmatched poses older than the newest scan: lost scans
+    pushed_out_scans: int = 0  # lost: pushed out of the full buffer before a pose reached them
+    passed_over_scans: int = 0  # pushed out of the buffer after the estimate went past them
+    # unmatched poses older than the newest scan and not older than the first, whose scans
+    # never came (ConsistencyMonitor.counts)
+    poses_without_scan: int = 0
     folded_scans: int = 0  # keyframes within a viewpoint's reach of the previous one, not tested
     estimate_stamp: float = math.nan  # the estimate these poses are (LivePipeline.evaluate)
+    # what became of every scan received (LivePipeline.evaluate; None from the monitor alone)
+    scan_counts: ScanCounts | None = None
 
     @property
     def keyframe_count(self) -> int:
@@ -186,6 +196,11 @@ class ConsistencyMonitor:
         # asks on every scan (`pending`) and a pass over the trajectory would grow with the run
         self._unmatched_stamps = np.zeros(0)
         self._pending = False
+        # the oldest scan stamp given to add_scan; the stamps of the scans that came and were
+        # not kept (sorted, the newest NOT_KEPT_LIMIT of them, and those noted since)
+        self._first_scan = math.inf
+        self._not_kept = np.zeros(0)
+        self._not_kept_new: list[float] = []
         self._constraints = np.zeros((0, CONSTRAINT_WIDTH))
 
     def _reset_pairs(self) -> None:
@@ -211,11 +226,6 @@ class ConsistencyMonitor:
     def keyframe_count(self) -> int:
         return 0 if self._keyframes is None else self._keyframes.count
 
-    @property
-    def dropped_scans(self) -> int:
-        """Scans pushed out of the full buffer before a pose named them."""
-        return self._buffer.dropped
-
     def add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
         """Buffer one scan until a trajectory names its pose.
 
@@ -228,9 +238,41 @@ class ConsistencyMonitor:
 
         Raises ValueError for a non-finite stamp, fewer than 2 beams, beams overlapping past
         2 pi, a beam geometry that differs from the first scan's, or a stamp already registered
-        as a keyframe.
+        as a keyframe or buffered; the map is unchanged, the stamp remembered as a scan that
+        came (`note_not_kept`).
         """
-        stamp = float(stamp)
+        try:
+            self._add_scan(float(stamp), ranges, model)
+        except ValueError:
+            self.note_not_kept([stamp])
+            raise
+        # the window in which a pose without its scan names a scan that never came
+        self._first_scan = min(self._first_scan, float(stamp))
+
+    def note_not_kept(self, stamps) -> None:
+        """Remember scans that came but were not kept (refused, or lost before they reached
+        the monitor), so that a pose naming one is not counted among the poses whose scan
+        never came: each is counted once, where it went (core/live/_scan_counts.py).
+
+        Parameters
+        ----------
+        stamps: the scans' stamps, seconds (non-finite ones are ignored).
+        """
+        finite = [float(stamp) for stamp in stamps if math.isfinite(stamp)]
+        self._not_kept_new.extend(finite)
+        if len(self._not_kept_new) > NOT_KEPT_LIMIT:
+            self._merge_not_kept()
+
+    def _merge_not_kept(self) -> None:
+        """The stamps noted as not kept into the sorted ones, of which the newest
+        NOT_KEPT_LIMIT are kept (a pose naming an older one is then taken for one whose scan
+        never came)."""
+        merged = np.sort(np.concatenate([self._not_kept, self._not_kept_new]))
+        self._not_kept = merged[-NOT_KEPT_LIMIT:]
+        self._not_kept_new = []
+
+    def _add_scan(self, stamp: float, ranges: np.ndarray, model: SensorModel) -> None:
+        """add_scan, without the bookkeeping of scans not kept."""
         ranges = np.asarray(ranges, dtype=np.float64)
         if not math.isfinite(stamp):
             raise ValueError(f'scan stamp must be finite, got {stamp}')
@@ -249,9 +291,11 @@ class ConsistencyMonitor:
                 f'{self._model.max_range:g})')
         if self._keyframes.holds(stamp):
             raise ValueError(f'scan at {stamp:.6f} duplicates a registered keyframe; ignored')
-        dropped = self._buffer.dropped
-        self._buffer.add(stamp, ranges)
-        if self._buffer.dropped != dropped:  # a full buffer let a scan go: check what is held
+        buffer = self._buffer
+        left = buffer.pushed_out + buffer.passed_over
+        reached = self._path_stamps[-1] if self._path_stamps.size else -math.inf  # sorted
+        self.note_not_kept(buffer.add(stamp, ranges, reached))
+        if buffer.pushed_out + buffer.passed_over != left:  # a scan went: check what is held
             self._pending = self._buffer_matches_unmatched()
         elif not self._pending:
             self._pending = bool(match_sorted(np.array([stamp]), self._unmatched_stamps,
@@ -450,21 +494,37 @@ class ConsistencyMonitor:
             last_update=self._last, **self.counts())
 
     def counts(self) -> dict[str, int]:
-        """The snapshot's counts of scans and poses that are not keyframes: buffered,
-        dropped, folded, and poses still without a scan. A scan that changes no keyframe
-        changes only these; none of them passes over the map.
+        """The snapshot's counts of scans and poses that are not keyframes: buffered, pushed
+        out (lost), passed over, folded, and poses still without a scan. A scan that changes
+        no keyframe changes only these; none of them passes over the map.
 
         Returns
         -------
         MonitorSnapshot field name -> value.
         """
-        # Scans arrive in stamp order: a pose older than the newest scan and still without
-        # one names a scan that was lost (or refused).
-        late = np.searchsorted(self._unmatched_stamps,
-                               self._buffer.newest - self.settings.stamp_tolerance)
         return dict(buffered_scans=len(self._buffer), unmatched_poses=self._unmatched,
-                    dropped_scans=self.dropped_scans, poses_without_scan=int(late),
+                    pushed_out_scans=self._buffer.pushed_out,
+                    passed_over_scans=self._buffer.passed_over,
+                    poses_without_scan=self._poses_without_scan(),
                     folded_scans=self._folded_count())
+
+    def _poses_without_scan(self) -> int:
+        """Poses of the last trajectory whose scans never came.
+
+        Scans arrive in stamp order: a pose older than the newest scan and still without one
+        names a scan that did not come, unless it is older than the first scan (a scan before
+        a reset, or before the node listened) or its scan came and was not kept (refused or
+        lost: counted as such)."""
+        tolerance = self.settings.stamp_tolerance
+        unmatched = self._unmatched_stamps
+        low, high = np.searchsorted(unmatched, [self._first_scan - tolerance,
+                                                self._buffer.newest - tolerance])
+        late = unmatched[low:max(low, high)]
+        if late.size and (self._not_kept.size or self._not_kept_new):
+            if self._not_kept_new:
+                self._merge_not_kept()
+            late = late[match_sorted(late, self._not_kept, tolerance) < 0]
+        return int(late.size)
 
     # -- bookkeeping -------------------------------------------------------------------------
 

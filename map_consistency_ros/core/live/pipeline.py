@@ -144,7 +144,9 @@ class LivePipeline:
         The monitor's snapshot (its `result` None before the first keyframe), its
         `estimate_stamp` naming the estimate the map holds.
         """
-        return replace(self.monitor.evaluate(), estimate_stamp=self.feed.estimate_stamp)
+        snapshot = self.monitor.evaluate()
+        return replace(snapshot, estimate_stamp=self.feed.estimate_stamp,
+                       scan_counts=self.feed.scan_counts())
 
     def recount(self, snapshot: MonitorSnapshot) -> MonitorSnapshot:
         """`snapshot`, taken since the map last changed, with the monitor's counts of now
@@ -157,12 +159,13 @@ class LivePipeline:
 
         Returns
         -------
-        The snapshot with its counts of buffered, dropped and folded scans and of poses
-        without a scan brought up to date.
+        The snapshot with its counts of scans that are not keyframes, of poses without a scan
+        and its `scan_counts` brought up to date.
         """
         if snapshot.keyframe_count == 0:  # nothing to copy; the first scan shapes the store
             return self.evaluate()
-        return replace(snapshot, **self.monitor.counts())
+        counts = self.monitor.counts()
+        return replace(snapshot, **counts, scan_counts=self.feed.scan_counts(counts))
 
     def explain(self, snapshot: MonitorSnapshot) -> LiveVerdict:
         """The second stage on `snapshot` (any thread; one explanation at a time).

@@ -141,7 +141,10 @@ def test_a_stamp_jump_resets_only_when_confirmed(intel):
     # one stray old stamp is held, then skipped when the session goes on
     stray = Scan(stamp=float(stamps[0]) - 100.0, ranges=ranges[0], model=model)
     assert feed.apply(stray).warnings == ()
-    assert 'skipped: stamped more than reset_stamp_jump' in feed.apply(scans[20]).warnings[0]
+    for scan in scans[20:20 + RESET_CONFIRMATIONS - 1]:
+        assert feed.apply(scan).warnings == ()
+    applied = feed.apply(scans[20 + RESET_CONFIRMATIONS - 1])
+    assert 'skipped: stamped more than reset_stamp_jump' in applied.warnings[0]
     assert feed.resets == 0 and feed.monitor.keyframe_count == 20
     # the same session again (a restarted SLAM stack, a looped bag): a reset, scans kept
     for scan in scans[:RESET_CONFIRMATIONS - 1]:
@@ -151,6 +154,46 @@ def test_a_stamp_jump_resets_only_when_confirmed(intel):
     feed.apply(KeyframeEstimate(stamps=stamps[:RESET_CONFIRMATIONS],
                                 poses=poses[:RESET_CONFIRMATIONS]))
     assert feed.monitor.keyframe_count == RESET_CONFIRMATIONS
+
+
+@pytest.mark.parametrize('stray_offset', [-0.5, -150.0])
+def test_a_stray_old_scan_before_a_restart_costs_no_scan_of_the_new_session(intel,
+                                                                           stray_offset):
+    """A late scan of the ending session, stamped more than reset_stamp_jump before its newest
+    (-0.5 s: newer than the new session's scans, -150 s: older), then a restarted session:
+    one reset, every scan of the new session kept."""
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(EVERY_KEYFRAME)
+    for scan in _scan_records(stamps[:20], ranges[:20], model):
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps[:20], poses=poses[:20]))
+    stray = Scan(stamp=float(stamps[10]) + stray_offset, ranges=ranges[10], model=model)
+    restarted = stamps[:30] - 100.0
+    applied = [feed.apply(scan) for scan in
+               [stray] + _scan_records(restarted, ranges[:30], model)]
+    assert feed.resets == 1 and sum(bool(a.reset) for a in applied) == 1
+    feed.apply(KeyframeEstimate(stamps=restarted, poses=poses[:30]))
+    assert feed.monitor.keyframe_count == 30
+    newer = stray_offset > -100.0  # the stray jumps back from nothing of the new session
+    warned = [w for a in applied for w in a.warnings if 'skipped' in w]
+    assert len(warned) == (1 if newer else 0)
+    assert feed.monitor.evaluate().buffered_scans == (0 if newer else 1)
+
+
+def test_a_late_scan_among_a_restarted_sessions_first_scans_costs_none_of_them(intel):
+    """A scan of the ending session comes after the restarted stack's first two: the held
+    scans still confirm one reset, and every scan of the new session is kept."""
+    stamps, ranges, poses, model = intel
+    feed = MonitorFeed(EVERY_KEYFRAME)
+    for scan in _scan_records(stamps[:20], ranges[:20], model):
+        feed.apply(scan)
+    feed.apply(KeyframeEstimate(stamps=stamps[:20], poses=poses[:20]))
+    restarted = _scan_records(stamps[:30] - 1000.0, ranges[:30], model)
+    late = Scan(stamp=float(stamps[19]) + 0.01, ranges=ranges[19], model=model)
+    applied = [feed.apply(scan) for scan in restarted[:2] + [late] + restarted[2:]]
+    assert feed.resets == 1 and not any('skipped' in w for a in applied for w in a.warnings)
+    feed.apply(KeyframeEstimate(stamps=stamps[:30] - 1000.0, poses=poses[:30]))
+    assert feed.monitor.keyframe_count == 30
 
 
 def test_constraints_and_bad_constraints():
@@ -212,7 +255,7 @@ def test_odometry_keyframes_interpolate_and_select():
     keyframes = PoseKeyframer(min_distance=1.0, min_angle=0.5)
     keyframes.add_scan(_scan(0.5))  # before any pose: cannot be placed
     assert keyframes.add_pose(_sample(1.0, [1.0, 2.0, math.pi / 2])) == []
-    assert keyframes.dropped == 1
+    assert keyframes.unplaced == 1
     for stamp in (1.5, 2.0, 2.5, 3.5):
         keyframes.add_scan(_scan(stamp))
     # From (1, 2, pi/2) the robot moves 2 m forward and turns 0.4 rad by t = 3.

@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_sorted,
                                                       match_stamps, rank_of_slot)
@@ -94,12 +95,20 @@ def test_the_scan_buffer_drops_the_oldest_stamp_and_matches_the_rest():
     buffer = ScanBuffer(capacity=2, tolerance=0.01)
     for stamp in (2.0, 1.0, 3.0):
         buffer.add(stamp, np.full(3, stamp))
-    assert len(buffer) == 2 and buffer.dropped == 1 and 1.0 not in buffer
+    assert len(buffer) == 2 and buffer.pushed_out == 1 and 1.0 not in buffer
     assert buffer.newest == 3.0
     matched = buffer.matches(np.array([2.005, 1.0, 2.5]))
     assert matched[0] == 2.0 and math.isnan(matched[1]) and math.isnan(matched[2])
     np.testing.assert_array_equal(buffer.pop(3.0), np.full(3, 3.0))
     assert buffer.newest == 3.0 and len(buffer) == 1  # the newest ever added stays
+    with pytest.raises(ValueError, match='duplicates a buffered'):
+        buffer.add(2.0, np.zeros(3))
+    # the estimate went past 2.0 without naming it: passed over, not lost
+    buffer.add(4.0, np.zeros(3), reached=2.5)
+    buffer.add(5.0, np.zeros(3), reached=2.5)
+    assert (buffer.pushed_out, buffer.passed_over, len(buffer)) == (1, 1, 2)
+    buffer.add(6.0, np.zeros(3), reached=4.005)  # within the tolerance: it may still be named
+    assert (buffer.pushed_out, buffer.passed_over, len(buffer)) == (2, 1, 2)
 
 
 def test_refreshed_slots_equal_slots_matched_from_scratch():

@@ -10,6 +10,7 @@ from map_consistency_ros.core.consistency import (ConsistencyParameters, Consist
                                                   check_consistency, inconsistent_endpoints)
 from map_consistency_ros.core.geometry import ScanSet, SensorModel, point_distances, se2
 from map_consistency_ros.core.live import ConsistencyMonitor, MonitorSettings
+from map_consistency_ros.core.live import monitor as monitor_module
 from map_consistency_ros.core.live._keyframes import NO_SCAN
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -279,7 +280,11 @@ def test_pending_follows_the_buffer_and_the_trajectory_from_scratch(intel):
         for index in arrival:
             if generator.random() < 0.1:
                 continue  # this scan is lost
-            monitor.add_scan(stamps[index], ranges[index], model)
+            try:
+                monitor.add_scan(stamps[index], ranges[index], model)
+            except ValueError:  # the raw log stamps a few scans alike: the second is refused
+                assert stamps[index] in monitor._buffer or monitor._keyframes.holds(
+                    stamps[index])
             assert monitor.pending == _pending_from_scratch(monitor)
             seen.add(monitor.pending)
             if monitor.pending and generator.random() < 0.5:
@@ -302,10 +307,10 @@ def test_a_pending_scan_pushed_out_of_the_buffer_is_no_longer_pending(intel):
     monitor.add_scan(stamps[5], ranges[5], model)  # the buffer holds 1 and 5: still pending
     assert monitor.pending
     monitor.add_scan(stamps[6], ranges[6], model)  # scan 1 is pushed out
-    assert not monitor.pending and monitor.dropped_scans == 1
+    assert not monitor.pending and monitor.evaluate().pushed_out_scans == 1
     assert monitor.refresh().new_keyframes == 0
-    # scan 1 never came as far as the monitor knows; later scans arrived: it is lost
-    assert monitor.evaluate().poses_without_scan == 1
+    # scan 1 came and was lost: counted there, its pose is not one whose scan never came
+    assert monitor.evaluate().poses_without_scan == 0
 
 
 def test_a_trajectory_before_any_scan_waits_for_its_scans(intel):
@@ -344,9 +349,41 @@ def test_scan_buffer_is_bounded_and_drops_the_oldest(intel):
     summary = monitor.update_trajectory(stamps[:12], poses[:12])
     assert summary.new_keyframes == 5 and summary.unmatched_poses == 7
     np.testing.assert_array_equal(monitor.evaluate().stamps, stamps[7:12])
-    # the seven dropped scans are counted, and the poses that name them say so
+    # the seven scans pushed out are counted once: as lost, not again by the poses naming them
     snapshot = monitor.evaluate()
-    assert snapshot.dropped_scans == 7 and snapshot.poses_without_scan == 7
+    assert snapshot.pushed_out_scans == 7 and snapshot.poses_without_scan == 0
+
+
+def test_poses_of_scans_that_came_or_came_before_the_first_are_not_without_scan(intel):
+    """A full trajectory after a reset names the previous session's scans, and a refused
+    scan's pose names a scan that came: neither is a pose whose scan never came."""
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor()
+    for index in range(10, 20):
+        monitor.add_scan(stamps[index], ranges[index], model)
+    with pytest.raises(ValueError):
+        monitor.add_scan(stamps[20], ranges[20][:50], model)
+    monitor.note_not_kept([stamps[21]])  # lost before it reached the monitor
+    monitor.add_scan(stamps[22], ranges[22], model)
+    monitor.update_trajectory(stamps[:23], poses[:23])
+    snapshot = monitor.evaluate()
+    assert snapshot.unmatched_poses == 10 + 2 and snapshot.poses_without_scan == 0
+    monitor.add_scan(stamps[24], ranges[24], model)
+    monitor.update_trajectory(stamps[:25], poses[:25])  # scan 23 never came
+    assert monitor.evaluate().poses_without_scan == 1
+
+
+def test_the_stamps_of_scans_not_kept_are_bounded(intel, monkeypatch):
+    """Only the newest NOT_KEPT_LIMIT stamps of scans refused or lost are remembered: the pose
+    of an older one counts as a pose whose scan never came."""
+    monkeypatch.setattr(monitor_module, 'NOT_KEPT_LIMIT', 3)
+    stamps, ranges, poses, model = _by_stamp(intel)
+    monitor = ConsistencyMonitor()
+    monitor.add_scan(stamps[0], ranges[0], model)
+    monitor.note_not_kept(stamps[1:6])
+    monitor.add_scan(stamps[6], ranges[6], model)
+    monitor.update_trajectory(stamps[:7], poses[:7])
+    assert monitor.evaluate().poses_without_scan == 2  # scans 1 and 2 forgotten
 
 
 def test_a_pose_whose_scan_never_came_is_reported_once_newer_scans_arrive(intel):

@@ -129,7 +129,7 @@ def test_a_recount_is_the_snapshot_of_a_map_no_scan_changed(intel):
             pipeline.apply(KeyframeEstimate(stamps=stamps[:k - 4], poses=poses[:k - 4]))
             snapshot = pipeline.evaluate()
     assert unchanged > 30
-    assert snapshot.dropped_scans > 0 and snapshot.poses_without_scan > 0
+    assert snapshot.pushed_out_scans > 0 and snapshot.poses_without_scan > 0
     assert snapshot.buffered_scans > 0
 
 
