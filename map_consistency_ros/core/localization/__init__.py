@@ -8,7 +8,14 @@ scans and the polygon kernel of the pairwise measure); knows nothing of ROS or f
 """
 from map_consistency_ros.core.localization._grid import (CELL_VALUES, FREE, OCCUPIED, UNKNOWN,
                                                          OccupancyGrid, trinary_cells)
+from map_consistency_ros.core.localization._grid_measure import (GridMeasures,
+                                                                 GridPointDistances,
+                                                                 GridReference, grid_measures,
+                                                                 grid_point_distances,
+                                                                 prepare_reference)
 
 __all__ = [
     'OccupancyGrid', 'trinary_cells', 'UNKNOWN', 'FREE', 'OCCUPIED', 'CELL_VALUES',
+    'GridReference', 'prepare_reference', 'GridMeasures', 'grid_measures',
+    'GridPointDistances', 'grid_point_distances',
 ]
