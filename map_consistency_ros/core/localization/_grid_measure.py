@@ -32,7 +32,7 @@ import numpy as np
 
 from map_consistency_ros.core.geometry import ScanSet, read_only
 from map_consistency_ros.core.geometry._measure import _fill_distances, _keep_largest
-from map_consistency_ros.core.localization._grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from map_consistency_ros.core.localization._grid import FREE, UNKNOWN, OccupancyGrid
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ visibility polygon; numpy for the sums and the unjudged beams; a real Intel scan
 map ray-cast from the corrected log."""
 import numpy as np
 import pytest
-from shapely.geometry import Point, Polygon, box
+from shapely.geometry import Point, Polygon
 from shapely.ops import unary_union
 
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
@@ -199,3 +199,51 @@ def test_bad_arguments():
         grid_measures(scans, prepare_reference(grid), keep_largest=-1)
     with pytest.raises(IndexError):
         grid_point_distances(scans, prepare_reference(grid), 1)
+
+
+@pytest.fixture(scope='module')
+def intel_map(shared_data):
+    """The first 150 scans of the corrected Intel log and the map ray-cast from them."""
+    from map_consistency_ros.evaluation.localization_data import ray_cast_grid
+    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    scans = ScanSet.from_ranges(log.ranges[:150], log.laser_poses[:150], sensor_model(log))
+    grid, _, _ = ray_cast_grid(scans, resolution=0.05)
+    return scans, grid, prepare_reference(grid)
+
+
+def test_a_real_intel_scan_against_the_map_of_its_log(intel_map):
+    scans, grid, reference = intel_map
+    scan = 100
+    one = scans.take([scan])
+    distances = grid_point_distances(one, reference, 0)
+    # the shapely oracle on the real scan: the map's obstacles in its visibility polygon
+    polygon = Polygon(np.vstack([one.sensor_poses[0, :2], one.endpoints[0]]))
+    polygon = polygon if polygon.is_valid else polygon.buffer(0)
+    near = reference.obstacles[(np.abs(reference.obstacles - one.sensor_poses[0, :2])
+                                <= 8.5).all(axis=1)]
+    depth = np.array([polygon.exterior.distance(Point(c)) if polygon.contains(Point(c))
+                      else 0.0 for c in near])
+    assert np.isclose(np.sort(distances.obstacle_depth).sum(), depth.sum(), atol=1e-6)
+    # the scan helped make the map: its end points agree with it (a few centimetres deep at
+    # most, as the other scans' walls spread over their cells)
+    measures = grid_measures(one, reference)
+    agreeing = measures.distance_sum[0] / measures.point_count[0]
+    assert agreeing < 0.05 and measures.unjudged_share[0] == 0
+    # off by 0.3 m to the side or 5 degrees: several times deeper
+    x, y, theta = one.sensor_poses[0]
+    for error in ([-0.3 * np.sin(theta), 0.3 * np.cos(theta), 0.0], [0.0, 0.0, np.radians(5)]):
+        moved = grid_measures(one.with_poses(one.sensor_poses + error), reference)
+        assert moved.distance_sum[0] / moved.point_count[0] > 3 * agreeing
+        assert moved.distance_sum[0] > 3 * measures.distance_sum[0]
+
+
+def test_every_real_scan_measured_at_once(intel_map):
+    scans, _, reference = intel_map
+    measures = grid_measures(scans, reference)
+    one_by_one = [grid_point_distances(scans, reference, scan) for scan in (0, 75, 149)]
+    for row, distances in zip((0, 75, 149), one_by_one):
+        expected = (distances.endpoint_depth[scans.valid[row]].sum()
+                    + distances.obstacle_depth.sum())
+        assert measures.distance_sum[row] == pytest.approx(expected)
+    assert np.median(measures.distance_sum / np.maximum(measures.point_count, 1)) < 0.05
