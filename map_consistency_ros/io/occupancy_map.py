@@ -284,6 +284,10 @@ def _read_with_pillow(path: Path, source: str) -> tuple[np.ndarray, np.ndarray |
                                  'image formats') from None
     try:
         with Image.open(path) as image:
+            # the header's size, before decoding a damaged or absurd image
+            if image.width * image.height > MAX_CELLS:
+                raise InputError(source, f'image of {image.width} x {image.height} pixels: '
+                                         'not a map')
             image.load()
             mode = image.mode
             if mode == 'P':

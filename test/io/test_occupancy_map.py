@@ -254,3 +254,36 @@ def test_bad_message_fields(fields, word):
     with pytest.raises(ValueError, match=word) as raised:
         grid_from_message_fields(width, height, resolution, origin, data, where='/map at 12.5')
     assert '/map at 12.5' in str(raised.value)
+
+
+def test_absurd_sizes_are_refused_before_decoding(tmp_path):
+    path = write_map(tmp_path, SAVED)
+    (tmp_path / 'map.pgm').write_bytes(b'P5\n100000 100000\n255\n' + bytes(10))
+    with pytest.raises(InputError, match='not a map'):
+        read_occupancy_map(path)
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_corrupted_maps_read_whole_or_fail_as_bad_input(tmp_path, seed):
+    """Truncated or byte-flipped YAML and images: a grid or an InputError, nothing else."""
+    rng = np.random.default_rng(seed)
+    cells = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], np.int8), size=(20, 30))
+    grid = OccupancyGrid(cells=cells, resolution=0.05, origin=[1.0, 2.0, 0.0])
+    write_occupancy_map(tmp_path / 'map.yaml', grid)
+    originals = {name: (tmp_path / name).read_bytes() for name in ('map.yaml', 'map.pgm')}
+    for trial in range(40):
+        name = ('map.yaml', 'map.pgm')[trial % 2]
+        data = bytearray(originals[name])
+        if trial % 4 < 2:
+            data = data[:rng.integers(0, len(data))]
+        else:
+            for position in rng.integers(0, len(data), 3):
+                data[position] = rng.integers(0, 256)
+        (tmp_path / name).write_bytes(bytes(data))
+        try:
+            read = read_occupancy_map(tmp_path / 'map.yaml')
+        except InputError as error:
+            assert str(tmp_path) in str(error)
+        else:
+            assert read.grid.cells.shape[0] * read.grid.cells.shape[1] > 0
+        (tmp_path / name).write_bytes(originals[name])
