@@ -21,6 +21,11 @@ d_F comes from one Euclidean distance transform of the free space at map load (s
 every cell keeps the nearest non-free cell to its centre; a point's depth is its distance to
 the nearest of the squares kept by its own cell and the 8 around it. That is the distance to a
 real non-free square, so never below the exact depth; tests bound the excess against shapely.
+
+numba's cache does not see changes to functions of other files: the grid kernels inline
+`_fill_distances` of core/geometry/_measure.py, so after changing it, touch this file (or
+clear its cache) to compile them again; test_grid_measure.py compares the two and fails on a
+stale cache.
 """
 from __future__ import annotations
 

@@ -247,3 +247,34 @@ def test_every_real_scan_measured_at_once(intel_map):
                     + distances.obstacle_depth.sum())
         assert measures.distance_sum[row] == pytest.approx(expected)
     assert np.median(measures.distance_sum / np.maximum(measures.point_count, 1)) < 0.05
+
+
+def test_obstacle_depths_are_the_pairwise_measures_own(intel_map):
+    """The obstacles' depths equal pairs_point_distances with the obstacles as a second scan's
+    end points. This also guards numba's cache, which does not see changes to the kernel of
+    core/geometry/_measure.py that the grid kernels call: after such a change this fails
+    until the grid kernels are compiled again (touch _grid_measure.py)."""
+    from map_consistency_ros.core.geometry import pairs_point_distances
+    scans, _, reference = intel_map
+    beams = scans.ranges.shape[1]
+    for scan in (10, 120):
+        one = scans.take([scan])
+        distances = grid_point_distances(one, reference, 0)
+        candidates = reference.obstacles[
+            (np.abs(reference.obstacles - one.sensor_poses[0, :2]) < 8.0).all(axis=1)]
+        expected = []
+        for start in range(0, len(candidates), beams):
+            batch = candidates[start:start + beams]
+            ends = np.zeros((beams, 2))
+            ends[:len(batch)] = batch
+            valid = np.arange(beams) < len(batch)
+            pair = ScanSet.from_parts(
+                one.model, sensor_poses=np.repeat(one.sensor_poses, 2, axis=0),
+                ranges=np.repeat(one.ranges, 2, axis=0),
+                valid=np.stack([one.valid[0], valid]),
+                endpoints=np.stack([one.endpoints[0], ends]),
+                extents=np.repeat(one.extents, 2, axis=0))
+            depth = pairs_point_distances(pair, np.array([[0, 1]]))[0, 0]
+            expected += depth[valid & (depth > 0)].tolist()
+        assert len(expected) > 10
+        assert np.allclose(np.sort(distances.obstacle_depth), np.sort(expected), atol=1e-12)
