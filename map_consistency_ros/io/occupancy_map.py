@@ -414,3 +414,23 @@ def write_occupancy_map(yaml_path: str | Path, grid: OccupancyGrid,
         outputs.path(image_path).write_bytes(header + pixels[::-1].tobytes())
         outputs.path(yaml_path).write_text(text)
     return image_path
+
+
+def message_fields_from_grid(grid: OccupancyGrid) -> dict:
+    """The fields of a nav_msgs/OccupancyGrid message carrying a grid (ROS-free), the inverse
+    of grid_from_message_fields.
+
+    Parameters
+    ----------
+    grid: the map.
+
+    Returns
+    -------
+    {'width', 'height', 'resolution', 'origin_xyz_quat' (7 floats: x, y, 0, 0, 0, qz, qw),
+    'data' (W * H int8, row-major from cell (0, 0), x fastest: -1, 0, 100)}.
+    """
+    z, w = se2.quaternion_from_yaw(float(grid.origin[2]))
+    return {'width': grid.width, 'height': grid.height, 'resolution': grid.resolution,
+            'origin_xyz_quat': [float(grid.origin[0]), float(grid.origin[1]), 0.0, 0.0, 0.0,
+                                float(z), float(w)],
+            'data': grid.cells.reshape(-1).copy()}

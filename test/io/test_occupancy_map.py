@@ -7,7 +7,8 @@ import pytest
 
 from map_consistency_ros.core.localization import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from map_consistency_ros.io.errors import InputError
-from map_consistency_ros.io.occupancy_map import (grid_from_message_fields, read_map_image,
+from map_consistency_ros.io.occupancy_map import (grid_from_message_fields,
+                                                  message_fields_from_grid, read_map_image,
                                                   read_occupancy_map, write_occupancy_map)
 
 YAML = ('image: {image}\nmode: {mode}\nresolution: 0.05\norigin: [-1.5, 2.0, 0.0]\n'
@@ -287,3 +288,14 @@ def test_corrupted_maps_read_whole_or_fail_as_bad_input(tmp_path, seed):
         else:
             assert read.grid.cells.shape[0] * read.grid.cells.shape[1] > 0
         (tmp_path / name).write_bytes(originals[name])
+
+
+def test_message_fields_round_trip():
+    rng = np.random.default_rng(7)
+    cells = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], np.int8), size=(9, 13))
+    grid = OccupancyGrid(cells=cells, resolution=0.05, origin=[3.0, -4.0, -2.5])
+    fields = message_fields_from_grid(grid)
+    assert fields['data'][:13].tolist() == cells[0].tolist()  # cell (0, 0) first, x fastest
+    back = grid_from_message_fields(**fields)
+    assert np.array_equal(back.cells, cells)
+    assert np.allclose(back.origin, grid.origin) and back.resolution == grid.resolution
