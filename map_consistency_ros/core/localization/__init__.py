@@ -1,0 +1,21 @@
+"""Localization mode: live scans judged against a fixed reference map (issue 49).
+
+The reference as a trinary occupancy grid (OccupancyGrid, the nav2 map's cells), and the grid
+side of the paper's measure: how deep live end points lie in the map's known free space and
+how deep the map's obstacles lie in a live scan's visibility polygon, summed per scan into M
+and n like the pairwise M_ij / n_ij so that the same statistics apply. Built on geometry (the
+scans and the polygon kernel of the pairwise measure); knows nothing of ROS or files.
+"""
+from map_consistency_ros.core.localization._grid import (CELL_VALUES, FREE, OCCUPIED, UNKNOWN,
+                                                         OccupancyGrid, trinary_cells)
+from map_consistency_ros.core.localization._grid_measure import (GridMeasures,
+                                                                 GridPointDistances,
+                                                                 GridReference, grid_measures,
+                                                                 grid_point_distances,
+                                                                 prepare_reference)
+
+__all__ = [
+    'OccupancyGrid', 'trinary_cells', 'UNKNOWN', 'FREE', 'OCCUPIED', 'CELL_VALUES',
+    'GridReference', 'prepare_reference', 'GridMeasures', 'grid_measures',
+    'GridPointDistances', 'grid_point_distances',
+]
