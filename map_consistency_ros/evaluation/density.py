@@ -21,7 +21,6 @@ region), and the rotation.
 """
 from __future__ import annotations
 
-import gzip
 import json
 import os
 import resource
@@ -38,6 +37,7 @@ from map_consistency_ros.core.consistency import ConsistencyParameters, select_v
 from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.verdict import RegistrationSettings, register_submaps, surface_points
 from map_consistency_ros.io.carmen import CarmenLog, read_carmen_log, sensor_model
+from map_consistency_ros.io.carmen_writer import write_flaser_log
 from map_consistency_ros.io.datasets import RawBag, match_scans
 from map_consistency_ros.io.staging import staged
 
@@ -168,17 +168,12 @@ def write_carmen_log(path: Path, native: NativeLog) -> None:
     path: the gzip log to write (its folder is created, an existing file replaced).
     native: the placed scans; poses with 6 decimals, stamps in seconds with 6 decimals.
     """
-    with staged(path) as target, gzip.open(target, 'wt', encoding='ascii',
-                                           compresslevel=9) as stream:
-        stream.write('# Intel Research Lab at the native laser rate: raw scans of intel.orig.bag '
-                     'placed from the corrected keyframes of intel.gfs.log by odometry and '
-                     'point-to-line ICP (map_consistency_ros/evaluation/density.py)\n')
-        for stamp, ranges, pose in zip(native.stamps, native.ranges, native.poses):
-            values = ' '.join(np.format_float_positional(np.float32(value), unique=True,
-                                                         trim='-') for value in ranges)
-            x, y, theta = pose
-            stream.write(f'FLASER {len(ranges)} {values} {x:.6f} {y:.6f} {theta:.6f} '
-                         f'{x:.6f} {y:.6f} {theta:.6f} {stamp:.6f} density {stamp:.6f}\n')
+    write_flaser_log(path, np.asarray(native.ranges, dtype=np.float32), native.poses,
+                     native.stamps, host='density',
+                     comment='Intel Research Lab at the native laser rate: raw scans of '
+                             'intel.orig.bag placed from the corrected keyframes of intel.gfs.log '
+                             'by odometry and point-to-line ICP '
+                             '(map_consistency_ros/evaluation/density.py)')
 
 
 def relation_errors(stamps: np.ndarray, poses: np.ndarray,

@@ -2,8 +2,9 @@
 
 The layout read by io/carmen.py: `FLASER K r_1 .. r_K x y theta odom_x odom_y odom_theta
 ipc_timestamp host logger_timestamp`, the given pose in both pose slots (as the corrected logs
-of the SLAM benchmarks have it). Ranges are written in their shortest exact decimal form, so
-that reading the log back gives the same float64 values.
+of the SLAM benchmarks have it). Ranges are written in their shortest exact decimal form of
+their own precision, so that reading the log back gives the same values (float32 ranges, as a
+LaserScan carries them, come back as the same float32 values).
 """
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def write_flaser_log(path: str | Path, ranges: np.ndarray, poses: np.ndarray,
     Parameters
     ----------
     path: the log to write (an existing one is replaced, its folder made if missing).
-    ranges: (N, K) finite ranges in metres.
+    ranges: (N, K) finite ranges in metres, float32 or float64 (written in the shortest form
+        that reads back as the same value of that precision).
     poses: (N, 3) laser poses (x, y, theta), written with 6 decimals in both pose slots.
     stamps: (N,) timestamps in seconds, written with 6 decimals as both timestamps.
     comment: a first line saying where the log comes from ('#' lines are skipped by readers);
@@ -34,7 +36,9 @@ def write_flaser_log(path: str | Path, ranges: np.ndarray, poses: np.ndarray,
     None. Raises ValueError for arrays of mismatched shapes, non-finite values or a host
     that is not one word.
     """
-    ranges = np.asarray(ranges, dtype=np.float64)
+    ranges = np.asarray(ranges)
+    if ranges.dtype != np.float32:
+        ranges = ranges.astype(np.float64)
     poses = np.asarray(poses, dtype=np.float64)
     stamps = np.asarray(stamps, dtype=np.float64)
     if ranges.ndim != 2 or poses.shape != (len(ranges), 3) or stamps.shape != (len(ranges),):
