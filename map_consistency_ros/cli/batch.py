@@ -206,7 +206,7 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
             args = _namespace('replay', path, given)
             values = replay.parameter_values(args, file_values)
             judgement = replay.judge(args, values)
-            scan_ids = None
+            scan_ids = judgement.scan_ids
         else:
             args = _namespace('check', path, given, _check_file_values(file_values))
             judgement = check.judge(args)
