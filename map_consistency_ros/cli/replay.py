@@ -695,7 +695,9 @@ def replay_and_report(args: argparse.Namespace,
     check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
                         judgement.scan_ids)
     if args.stats_plot:
-        plots.save_statistics_figure(args.stats_plot, judgement.snapshot.result)
+        # the verdict's result, with the pairs of flagged scans the partner budget left out:
+        # the pairs the summary and the report count
+        plots.save_statistics_figure(args.stats_plot, judgement.assessment.result)
     for label, path in (('report', args.report), ('figure', args.plot),
                         ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
                         ('failed pairs figure', args.explain)):
