@@ -113,9 +113,10 @@ def break_map(judgement: replay.BagJudgement, out: Path, args: argparse.Namespac
     target = out / 'wrong_loop_closure'
     outputs = argparse.Namespace(report=target / 'report.json', plot=target / 'map.png',
                                  pairs_csv=None, explain=None)
-    check.write_outputs(outputs, scans, assessment, {'source': 'demo bag + one wrong loop '
-                                                     f'closure {start}-{end}'}, scan_ids)
-    print(f'  report                {outputs.report}\n  figure                {outputs.plot}')
+    regions = check.write_outputs(outputs, scans, assessment,
+                                  {'source': f'demo bag + one wrong loop closure {start}-{end}'},
+                                  scan_ids)
+    check.print_outputs([('report', outputs.report), ('figure', outputs.plot)], regions)
     return exit_codes.of_outcome(assessment.outcome)
 
 

@@ -692,16 +692,14 @@ def replay_and_report(args: argparse.Namespace,
     """
     judgement = judge(args, values)
     print(judgement.summary)
-    check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
-                        judgement.scan_ids)
+    regions = check.write_outputs(args, judgement.scans, judgement.assessment,
+                                  judgement.details, judgement.scan_ids)
     if args.stats_plot:
         # the verdict's result, with the pairs of flagged scans the partner budget left out:
         # the pairs the summary and the report count
         plots.save_statistics_figure(args.stats_plot, judgement.assessment.result)
-    for label, path in (('report', args.report), ('figure', args.plot),
-                        ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
-                        ('failed pairs figure', args.explain)):
-        if path:
-            print(f'  {label:<21} {path}', file=sys.stdout)
+    check.print_outputs([('report', args.report), ('figure', args.plot),
+                         ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
+                         ('failed pairs figure', args.explain)], regions)
     code = exit_codes.of_outcome(judgement.assessment.outcome)
     return code, judgement

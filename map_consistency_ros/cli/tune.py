@@ -219,5 +219,6 @@ def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses,
     figure, axes = plots.plt.subplots(1, 2, figsize=(14, 7))
     plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
     plots.plot_map(axes[1], profile.scans_at(result.poses), tuned, f'Phi* = {result.phi:.4g}')
+    plots.lay_out(figure)  # two long titles side by side: wrapped, laid out on their extents
     plots.save_figure(figure, path)
 
