@@ -6,11 +6,11 @@ the same monitor the node runs and writes report.json, map.png, psi.png and pair
 --output: the corrected map passes.
 
 Then the demo shows the other side: one wrong loop closure is added to the bag's pose graph
-(keyframe 260 seen from keyframe 30 0.6 m and 4 degrees off its true place, as a false place
-recognition would report it), the graph is optimized by least squares as a SLAM back-end
-would, and the optimized trajectory goes to the same monitor as the back-end's next estimate.
-The verdict names the misaligned region and its size; its report and map go to
---output/wrong_loop_closure/.
+(the scan of laser record 268 seen from that of record 30, 0.6 m and 4 degrees off its true
+place, as a false place recognition would report it), the graph is optimized by least squares
+as a SLAM back-end would, and the optimized trajectory goes to the same monitor as the
+back-end's next estimate. The verdict names the misaligned region and its size; its report,
+map and the region zoomed in go to --output/wrong_loop_closure/.
 """
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.verdict import explain
 
 DEMO_BAG = 'intel_demo.mcap'
-# the wrong loop closure: (from keyframe, to keyframe), error (metres, metres, degrees)
+# the wrong loop closure: (from, to) vertices of the viewpoints' pose graph (laser records 30
+# and 268, as the outputs name them), error (metres, metres, degrees)
 WRONG_LOOP = ((30, 260), (0.6, 0.0, 4.0))
 
 
@@ -106,9 +107,12 @@ def break_map(judgement: replay.BagJudgement, out: Path, args: argparse.Namespac
     scans = snapshot.scans()
     _, explanation = check.verdict_settings(args)
     assessment = explain(scans, snapshot.result, explanation)
-    print(f'\nThe same bag with one wrong loop closure (keyframe {end} seen from keyframe '
-          f'{start} {error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
+    # the graph's vertices are the viewpoints in stamp order, as the snapshot's scans; every
+    # output names them by their laser records
     scan_ids = judgement.replay.record_indices(snapshot.stamps)
+    start, end = int(scan_ids[start]), int(scan_ids[end])
+    print(f'\nThe same bag with one wrong loop closure (scan {end} seen from scan {start} '
+          f'{error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
     print(report.format_summary(assessment, 'wrong loop closure', scan_ids))
     target = out / 'wrong_loop_closure'
     outputs = argparse.Namespace(report=target / 'report.json', plot=target / 'map.png',
