@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.verdict import (Assessment, assessment_report, result_report,
-                                              scan_names, to_json)
+from map_consistency_ros.core.verdict import (Assessment, assessment_report, regions_alike,
+                                              result_report, scan_names, to_json)
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
            'format_summary', 'region_text', 'scan_span']
@@ -94,6 +94,15 @@ def format_summary(assessment: Assessment, source: str,
     if len(assessment.misalignments) > _SHOWN_REGIONS:
         lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions '
                      '(the report lists them all)')
+    if len(assessment.misalignments) > 1:
+        lines.append('  regions apart         one per place where displaced scans meet the '
+                     'scans they revisit: a stretch displaced once shows at each such place')
+    tolerance = assessment.settings.misalignment_tolerance
+    for group in regions_alike(assessment.misalignments, tolerance):
+        names = [f'#{index + 1}' for index in group]
+        lines.append(f'  move alike            {", ".join(names[:-1])} and {names[-1]}: '
+                     f'corrections within {tolerance:.2f} m of each other at their centroids '
+                     '(likely one displacement)')
     return '\n'.join(lines)
 
 

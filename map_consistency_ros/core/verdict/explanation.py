@@ -325,6 +325,43 @@ class Assessment:
         return f'{verdict}: {distortion}{regions} ({size}); {changes}'
 
 
+def regions_alike(regions: tuple[Misalignment, ...], tolerance: float) -> list[list[int]]:
+    """Groups of regions that move alike: their corrections place each region's centroid
+    within `tolerance` of each other. Regions are counted apart where their scans are not
+    joined by failing pairs or by consecutive viewpoints, so a stretch displaced once makes a
+    region at every place where it meets the scans it revisits; regions that move alike are
+    likely such one displacement.
+
+    Parameters
+    ----------
+    regions: misaligned regions, in the order the outputs number them.
+    tolerance: metres (the map's misalignment_tolerance).
+
+    Returns
+    -------
+    The groups of two or more, each the sorted indices into `regions`, by their first
+    index; regions without a correction or a centroid join none.
+    """
+    known = [index for index, region in enumerate(regions)
+             if np.all(np.isfinite(region.correction)) and np.all(np.isfinite(region.centroid))]
+    links = []
+    for position, a in enumerate(known):
+        for b in known[position + 1:]:
+            first, second = regions[a], regions[b]
+            if all(np.hypot(*(se2.compose(one.correction, [*at.centroid, 0.0])[:2]
+                              - se2.compose(other.correction, [*at.centroid, 0.0])[:2]))
+                   <= tolerance for one, other, at in ((first, second, first),
+                                                       (first, second, second))):
+                links.append((a, b))
+    if not links:
+        return []
+    labels = _components(len(regions), np.array(links))
+    groups = {}
+    for index in sorted({member for link in links for member in link}):
+        groups.setdefault(int(labels[index]), []).append(index)
+    return sorted(groups.values())
+
+
 def _local_distortion(result: ConsistencyResult) -> float:
     """Metres: the mean inconsistency distance between the median scan of the map and its
     temporal neighbours, the half-normal mean sqrt(2 / pi) s of the median of the map's own

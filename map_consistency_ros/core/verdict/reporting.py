@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.verdict.explanation import Assessment
+from map_consistency_ros.core.verdict.explanation import Assessment, regions_alike
 
 
 def scan_names(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:
@@ -70,6 +70,11 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
     The report dict (numpy values; `to_json` makes it text).
     """
     ids = scan_names(assessment.result, scan_ids)
+    # the numbers of the other regions each region moves alike with (likely one displacement)
+    alike = {index: [other + 1 for other in group if other != index]
+             for group in regions_alike(assessment.misalignments,
+                                        assessment.settings.misalignment_tolerance)
+             for index in group}
     content = result_report(assessment.result, scan_ids)
     content.update({
         'verdict': assessment.outcome,
@@ -88,7 +93,8 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
         'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
         'local_distortion_m': assessment.local_distortion,
         'distorted': assessment.distorted,
-        'misalignments': [_region(region, ids, number)
+        'misalignments': [dict(_region(region, ids, number),
+                               moves_alike_with=alike.get(number - 1, []))
                           for number, region in enumerate(assessment.misalignments, 1)],
         'minor_misalignments': [_region(region, ids, number) for number, region in enumerate(
             assessment.minor_misalignments, len(assessment.misalignments) + 1)],
