@@ -263,12 +263,13 @@ def _describe(row: dict, assessment, scan_ids: np.ndarray | None) -> None:
     row['scans'] = int(result.scan_count)
     row['summary_line'] = assessment.summary_line()
     row['regions'] = [{
+        'number': number,  # as `check` prints it and its report and figures name it
         'scans': _span(ids[region.scans]),
         'reference_scans': _span(ids[region.reference_scans]),
         'displacement_m': _number(region.displacement) if region.registered else None,
         'registered': bool(region.registered),
-        'text': report.region_text(region, ids),
-    } for region in assessment.misalignments]
+        'text': f'#{number} {report.region_text(region, ids)}',
+    } for number, region in enumerate(assessment.misalignments, 1)]
     row['changed_places'] = len(assessment.changes)
 
 
