@@ -25,6 +25,10 @@ Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic)
                              slam_toolbox_graph (docs/slam_bridges.md).
 std_msgs/Float64MultiArray on /constraints (optional) is passed on as the pose-graph edges.
 
+Every output names a keyframe by its laser record: the 0-based position of its scan message
+on the scan topic (over all bags given, in log order), as `check` names a log's scans; the
+report's keyframe_stamps give their stamps.
+
 --publish plays the bag's scan, pose and constraints topics onto live ROS 2 topics instead
 (raw CDR bytes, paced at --rate times real time) to drive a running node.
 

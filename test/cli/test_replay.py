@@ -526,6 +526,9 @@ def test_replay_and_check_name_scans_by_the_same_laser_records(strict_json, demo
                          for command in ('check', 'replay'))
     ids = checked['scans']['id']
     assert replayed['scans']['id'] == ids
+    for report in (checked, replayed):  # the explained classes and the rest: the failed pairs
+        assert (sum(report['explained_pairs'].values()) + report['failed_pairs_not_explained']
+                == report['summary']['failed_pairs'])
     # folded records leave gaps: ranks among the keyframes would differ from these names
     assert ids != list(range(len(ids))) and max(ids) == 289
 
