@@ -18,6 +18,7 @@ from matplotlib.collections import PathCollection  # noqa: E402
 from matplotlib.transforms import ScaledTranslation  # noqa: E402
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
 
+from map_consistency_ros.cli.report import region_text, scan_span  # noqa: E402
 from map_consistency_ros.core.consistency import ConsistencyResult, statistics  # noqa: E402
 from map_consistency_ros.core.geometry import ScanSet, point_distances  # noqa: E402
 from map_consistency_ros.core.verdict import (  # noqa: E402
@@ -293,7 +294,8 @@ def explained_pairs(assessment: Assessment, count: int = 3) -> list[tuple[int, s
 
     Returns
     -------
-    [(row of result.pairs, what the pair is to the verdict: e.g. 'region #1, misaligned')].
+    [(row of result.pairs, what the pair is to the verdict, e.g. 'region #1 (fails the map),
+    a pair classed misaligned')].
     """
     result = assessment.result
     shown = []
@@ -378,7 +380,6 @@ def plot_region(axes, scans: ScanSet, assessment: Assessment, number: int,
     number: the region's number as printed (1 for assessment.misalignments[0]).
     scan_ids: (N,) names of the scans; None: their indices.
     """
-    from map_consistency_ros.cli.report import region_text, scan_span
     region = assessment.misalignments[number - 1]
     ids = scan_names(assessment.result, scan_ids)
     deep = misaligned_endpoints(scans, assessment, max_pairs=200, min_depth=_HIGHLIGHT_SCALES,
