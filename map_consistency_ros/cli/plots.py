@@ -385,6 +385,8 @@ def plot_region(axes, scans: ScanSet, assessment: Assessment, number: int,
     deep = misaligned_endpoints(scans, assessment, max_pairs=200, min_depth=_HIGHLIGHT_SCALES,
                                 region=region)
     view_points = deep if len(deep) else _scan_points(scans, region.scans)
+    if not len(view_points):  # scans that hit nothing: where they were taken
+        view_points = scans.sensor_poses[region.scans, :2]
     low, high = np.percentile(view_points, [5, 95], axis=0)
     centre = (low + high) / 2.0
     half = max(float(np.max(high - low)) / 2.0 + _REGION_MARGIN, _REGION_MIN_VIEW / 2.0)
