@@ -207,7 +207,7 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
             args = _namespace('replay', path, given)
             values = replay.parameter_values(args, file_values)
             judgement = replay.judge(args, values)
-            scan_ids = None
+            scan_ids = judgement.scan_ids
         else:
             args = _namespace('check', path, given, _check_file_values(file_values))
             judgement = check.judge(args)
@@ -264,12 +264,13 @@ def _describe(row: dict, assessment, scan_ids: np.ndarray | None) -> None:
     row['scans'] = int(result.scan_count)
     row['summary_line'] = assessment.summary_line()
     row['regions'] = [{
+        'number': number,  # as `check` prints it and its report and figures name it
         'scans': _span(ids[region.scans]),
         'reference_scans': _span(ids[region.reference_scans]),
         'displacement_m': _number(region.displacement) if region.registered else None,
         'registered': bool(region.registered),
-        'text': report.region_text(region, ids),
-    } for region in assessment.misalignments]
+        'text': f'#{number} {report.region_text(region, ids)}',
+    } for number, region in enumerate(assessment.misalignments, 1)]
     row['changed_places'] = len(assessment.changes)
 
 

@@ -17,7 +17,6 @@ examples:
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,11 +65,16 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--report', type=Path, metavar='JSON',
                        help='write the verdict, figures, sensor model and parameters as JSON')
     group.add_argument('--plot', type=Path, metavar='PNG',
-                       help='write the map with inconsistent scans and end points highlighted')
+                       help='write the map with inconsistent scans and end points highlighted '
+                            'and its misaligned regions numbered as printed; each region '
+                            'zoomed in, as mapped and corrected, beside it as '
+                            'STEM_region1.png, STEM_region2.png, ...')
     group.add_argument('--pairs-csv', type=Path, metavar='CSV',
                        help='write every overlapping pair: i, j, M_ij, n_ij, psi_ij, failed')
     group.add_argument('--explain', type=Path, metavar='PNG',
-                       help='write the three failed pairs with the largest Psi, zoomed in')
+                       help='write the failed pairs behind the verdict, zoomed in: the three '
+                            'strongest of region #1 (the region that fails the map), then the '
+                            'three strongest others')
     group.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
@@ -130,7 +134,7 @@ def is_graph(path: Path) -> bool:
 
 def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessment,
                   details: dict, scan_ids: np.ndarray | None = None,
-                  outputs: StagedOutputs | None = None) -> None:
+                  outputs: StagedOutputs | None = None) -> list[Path]:
     """Write the report, figures and pairs CSV the user asked for, all of them or none.
 
     Parameters
@@ -139,16 +143,20 @@ def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessme
         output not asked for.
     scans: the S scans judged, at the poses judged.
     assessment: both stages' verdict on `scans`.
-    details: the report's fields beside the verdict; its 'source' titles the map figure.
-    scan_ids: (S,) names of the scans in the report and the CSV; None: their indices.
+    details: the report's fields beside the verdict; its 'source' (its file name) titles the
+        map figure.
+    scan_ids: (S,) names of the scans in every output; None: their indices.
     outputs: the caller's staged outputs, for outputs of its own to appear with these; None:
         these appear together when all are written, and none of them when one fails
         (io/staging.py).
+
+    Returns
+    -------
+    The zoomed figures of the misaligned regions written beside --plot (none without it).
     """
     if outputs is None:
         with StagedOutputs() as outputs:
-            write_outputs(args, scans, assessment, details, scan_ids, outputs)
-        return
+            return write_outputs(args, scans, assessment, details, scan_ids, outputs)
     if args.plot or args.explain:
         # matplotlib costs half a second of start-up: only the runs that draw pay it.
         from map_consistency_ros.cli import plots
@@ -156,13 +164,17 @@ def write_outputs(args: argparse.Namespace, scans: ScanSet, assessment: Assessme
         write = report.assessment_report(assessment, scan_ids)
         write.update(details)
         report.write_json(outputs.path(args.report), write)
+    regions = []
     if args.plot:
         plots.save_map_figure(outputs.path(args.plot), scans, assessment,
-                              title=str(details.get('source', '')))
+                              title=plots.title_name(details.get('source', '')))
+        regions = plots.save_region_figures(args.plot, scans, assessment, scan_ids,
+                                            place=outputs.path)
     if args.pairs_csv:
         report.write_pairs_csv(outputs.path(args.pairs_csv), assessment.result, scan_ids)
     if args.explain:
-        plots.save_pairs_figure(outputs.path(args.explain), scans, assessment.result)
+        plots.save_pairs_figure(outputs.path(args.explain), scans, assessment, scan_ids)
+    return regions
 
 
 def verdict_settings(args: argparse.Namespace):
@@ -253,10 +265,24 @@ def run(args: argparse.Namespace) -> int:
     print(f'  viewpoints            {judgement.scan_ids.size} of '
           f'{judgement.details["laser_records"]} laser records')
     print(f'  test time             {judgement.seconds:.2f} s')
-    write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
-                  judgement.scan_ids)
-    for label, path in (('report', args.report), ('figure', args.plot),
-                        ('pairs', args.pairs_csv), ('failed pairs figure', args.explain)):
-        if path:
-            print(f'  {label:<21} {path}', file=sys.stdout)
+    regions = write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
+                            judgement.scan_ids)
+    print_outputs([('report', args.report), ('figure', args.plot),
+                   ('pairs', args.pairs_csv), ('failed pairs figure', args.explain)], regions)
     return exit_codes.of_outcome(judgement.assessment.outcome)
+
+
+def print_outputs(outputs: list[tuple[str, Path | None]], regions: list[Path]) -> None:
+    """Print the files written, one per line: the outputs asked for, then the zoomed figure
+    of each region.
+
+    Parameters
+    ----------
+    outputs: (label, path) of each output; a path None was not asked for.
+    regions: the region figures written, region #1 first.
+    """
+    for label, path in outputs:
+        if path:
+            print(f'  {label:<21} {path}')
+    for number, path in enumerate(regions, 1):
+        print(f'  {f"region #{number} figure":<21} {path}')

@@ -6,11 +6,11 @@ the same monitor the node runs and writes report.json, map.png, psi.png and pair
 --output: the corrected map passes.
 
 Then the demo shows the other side: one wrong loop closure is added to the bag's pose graph
-(keyframe 260 seen from keyframe 30 0.6 m and 4 degrees off its true place, as a false place
-recognition would report it), the graph is optimized by least squares as a SLAM back-end
-would, and the optimized trajectory goes to the same monitor as the back-end's next estimate.
-The verdict names the misaligned region and its size; its report and map go to
---output/wrong_loop_closure/.
+(the scan of laser record 268 seen from that of record 30, 0.6 m and 4 degrees off its true
+place, as a false place recognition would report it), the graph is optimized by least squares
+as a SLAM back-end would, and the optimized trajectory goes to the same monitor as the
+back-end's next estimate. The verdict names the misaligned region and its size; its report,
+map and the region zoomed in go to --output/wrong_loop_closure/.
 """
 from __future__ import annotations
 
@@ -25,11 +25,11 @@ from map_consistency_ros.cli import main as cli_main
 from map_consistency_ros.cli import check, exit_codes, replay, report
 from map_consistency_ros.core.backend import PoseGraph, optimize
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.live import ConsistencyMonitor
 from map_consistency_ros.core.verdict import explain
 
 DEMO_BAG = 'intel_demo.mcap'
-# the wrong loop closure: (from keyframe, to keyframe), error (metres, metres, degrees)
+# the wrong loop closure: (from, to) vertices of the viewpoints' pose graph (laser records 30
+# and 268, as the outputs name them), error (metres, metres, degrees)
 WRONG_LOOP = ((30, 260), (0.6, 0.0, 4.0))
 
 
@@ -80,13 +80,13 @@ def with_wrong_loop_closure(graph: PoseGraph, keyframes: tuple[int, int],
                      fixed=graph.fixed)
 
 
-def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) -> int:
+def break_map(judgement: replay.BagJudgement, out: Path, args: argparse.Namespace) -> int:
     """Close the wrong loop, give the monitor the optimized estimate, report its verdict.
 
     Parameters
     ----------
-    monitor: the monitor after the demo bag's replay, holding its pose graph; it takes the
-        optimized trajectory as the back-end's next estimate.
+    judgement: the demo bag's replay; its monitor, holding the pose graph, takes the
+        optimized trajectory as the back-end's next estimate, and its records name the scans.
     out: the --output folder; the report and map figure go to out/wrong_loop_closure/.
     args: the parsed options of the demo's replay, whose verdict settings explain the map.
 
@@ -95,6 +95,7 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
     The exit code of the verdict (cli/exit_codes.py); EXIT_INCONSISTENT (1) is the one
     expected. RuntimeError when the bag carries no constraints.
     """
+    monitor = judgement.monitor
     graph = monitor.pose_graph()
     if graph is None:
         raise RuntimeError('the demo bag carries no constraints')
@@ -106,15 +107,20 @@ def break_map(monitor: ConsistencyMonitor, out: Path, args: argparse.Namespace) 
     scans = snapshot.scans()
     _, explanation = check.verdict_settings(args)
     assessment = explain(scans, snapshot.result, explanation)
-    print(f'\nThe same bag with one wrong loop closure (keyframe {end} seen from keyframe '
-          f'{start} {error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
-    print(report.format_summary(assessment, 'wrong loop closure'))
+    # the graph's vertices are the viewpoints in stamp order, as the snapshot's scans; every
+    # output names them by their laser records
+    scan_ids = judgement.replay.record_indices(snapshot.stamps)
+    start, end = int(scan_ids[start]), int(scan_ids[end])
+    print(f'\nThe same bag with one wrong loop closure (scan {end} seen from scan {start} '
+          f'{error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
+    print(report.format_summary(assessment, 'wrong loop closure', scan_ids))
     target = out / 'wrong_loop_closure'
     outputs = argparse.Namespace(report=target / 'report.json', plot=target / 'map.png',
                                  pairs_csv=None, explain=None)
-    check.write_outputs(outputs, scans, assessment, {'source': 'demo bag + one wrong loop '
-                                                     f'closure {start}-{end}'})
-    print(f'  report                {outputs.report}\n  figure                {outputs.plot}')
+    regions = check.write_outputs(outputs, scans, assessment,
+                                  {'source': f'demo bag + one wrong loop closure {start}-{end}'},
+                                  scan_ids)
+    check.print_outputs([('report', outputs.report), ('figure', outputs.plot)], regions)
     return exit_codes.of_outcome(assessment.outcome)
 
 
@@ -135,8 +141,8 @@ def run(args: argparse.Namespace) -> int:
                  '--pairs-csv', str(out / 'pairs.csv')]
     replay_args = cli_main.build_parser('replay').parse_args(arguments + (['--quiet'] if args.quiet
                                                                   else []))
-    corrected, monitor = replay.replay_and_report(replay_args)
-    broken = break_map(monitor, out, replay_args)
+    corrected, judgement = replay.replay_and_report(replay_args)
+    broken = break_map(judgement, out, replay_args)
     as_expected = (corrected, broken) == (exit_codes.EXIT_CONSISTENT,
                                           exit_codes.EXIT_INCONSISTENT)
     print('\ndemo: ' + ('the corrected map passes and the wrong loop closure is caught'

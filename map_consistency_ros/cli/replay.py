@@ -25,6 +25,10 @@ Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic)
                              slam_toolbox_graph (docs/slam_bridges.md).
 std_msgs/Float64MultiArray on /constraints (optional) is passed on as the pose-graph edges.
 
+Every output names a keyframe by its laser record: the 0-based position of its scan message
+on the scan topic (over all bags given, in log order), as `check` names a log's scans; the
+report's keyframe_stamps give their stamps.
+
 --publish plays the bag's scan, pose and constraints topics onto live ROS 2 topics instead
 (raw CDR bytes, paced at --rate times real time) to drive a running node.
 
@@ -187,6 +191,28 @@ class Replay:
         self.bag = bag
         self.pipeline = pipeline
         self.stats = ReplayStats()
+        # the stamp of every laser record (scan message) in log order, NaN for one that could
+        # not be read: outputs name a keyframe by its record's position, as `check` does
+        self._scan_stamps: list[float] = []
+
+    def record_indices(self, stamps: np.ndarray) -> np.ndarray:
+        """The 0-based positions of the laser records with these stamps among the scan
+        messages replayed (of all bags, in log order): the names of keyframes in every output,
+        as `check` names a log's scans by their laser records.
+
+        Parameters
+        ----------
+        stamps: (N,) keyframe stamps, seconds (a keyframe keeps its scan's stamp).
+
+        Returns
+        -------
+        (N,) int64; the first record of a stamp that several records carry (the monitor keeps
+        the first), -1 for a stamp no record carries.
+        """
+        first: dict[float, int] = {}
+        for index, stamp in enumerate(self._scan_stamps):
+            first.setdefault(stamp, index)
+        return np.array([first.get(float(stamp), -1) for stamp in stamps], dtype=np.int64)
 
     def run(self, progress=None, duration: float | None = None) -> MonitorSnapshot:
         """Feed the records (of the first `duration` seconds); return the first stage on the
@@ -212,6 +238,8 @@ class Replay:
                 break
             self.stats.log_seconds = log_time - self.bag.start_time
             if isinstance(record, BadMessage):
+                if record.topic == self.bag.topics.scan:
+                    self._scan_stamps.append(math.nan)
                 self.stats.warn(f'message {record.index} on {record.topic} ignored: '
                                 f'{record.reason}')
                 if record.topic == self.bag.topics.scan:  # received: it counts (rejected)
@@ -219,6 +247,8 @@ class Replay:
                                                      unreadable=np.array([math.nan])))
                 continue
             self._count(record)
+            if isinstance(record, Scan):
+                self._scan_stamps.append(float(record.stamp))
             applied = self.pipeline.apply(record)
             self.stats.warnings.extend(applied.warnings)
             if applied.reset:
@@ -456,9 +486,10 @@ def replay_bag(args: argparse.Namespace, bag: BagReader, values: dict | None = N
     return snapshot, replay, details
 
 
-def _summary(assessment: Assessment, replay: Replay, bag: BagReader) -> str:
+def _summary(assessment: Assessment, replay: Replay, bag: BagReader,
+             scan_ids: np.ndarray) -> str:
     stats = replay.stats
-    lines = [report.format_summary(assessment, bag.source),
+    lines = [report.format_summary(assessment, bag.source, scan_ids),
              f'  poses                 {bag.pose_topic} ({bag.pose_type}), '
              f'{stats.trajectories} trajectory updates',
              f'  replay                {stats.scans} scans in {stats.seconds:.2f} s: '
@@ -597,6 +628,9 @@ class BagJudgement:
     summary: str  # the lines replay prints
     monitor: ConsistencyMonitor  # in its final state
     seconds: float  # the replay and the explanation, without opening the bag
+    # (N,) names of the judged keyframes in every output: their laser records' positions
+    scan_ids: np.ndarray
+    replay: Replay  # what was replayed: its record_indices name the keyframes of other maps
 
     @property
     def assessment(self) -> Assessment:
@@ -643,13 +677,14 @@ def judge(args: argparse.Namespace, values: dict | None = None) -> BagJudgement:
                                          f'{bag.topics.scan} and no pose of {bag.pose_topic} '
                                          'matched one (check --stamp-tolerance)')
         verdict = replay.pipeline.explain(snapshot)
-        summary = _summary(verdict.assessment, replay, bag)
+        scan_ids = replay.record_indices(snapshot.stamps)
+        summary = _summary(verdict.assessment, replay, bag, scan_ids)
     return BagJudgement(verdict, details, summary, replay.pipeline.monitor,
-                        time.perf_counter() - started)
+                        time.perf_counter() - started, scan_ids, replay)
 
 
 def replay_and_report(args: argparse.Namespace,
-                      values: dict | None = None) -> tuple[int, ConsistencyMonitor]:
+                      values: dict | None = None) -> tuple[int, BagJudgement]:
     """Replay the bag, print the verdict, write the outputs asked for.
 
     Parameters
@@ -659,20 +694,21 @@ def replay_and_report(args: argparse.Namespace,
 
     Returns
     -------
-    The exit code of the verdict (cli/exit_codes.py) and the monitor in its final state.
+    The exit code of the verdict (cli/exit_codes.py) and the judgement, its monitor in its
+    final state.
     """
     judgement = judge(args, values)
     print(judgement.summary)
     with StagedOutputs() as outputs:  # every output, or none
-        check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
-                            outputs=outputs)
+        regions = check.write_outputs(args, judgement.scans, judgement.assessment,
+                                      judgement.details, judgement.scan_ids, outputs=outputs)
         if args.stats_plot:
+            # the verdict's result, with the pairs of flagged scans the partner budget left
+            # out: the pairs the summary and the report count
             plots.save_statistics_figure(outputs.path(args.stats_plot),
-                                         judgement.snapshot.result)
-    for label, path in (('report', args.report), ('figure', args.plot),
-                        ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
-                        ('failed pairs figure', args.explain)):
-        if path:
-            print(f'  {label:<21} {path}', file=sys.stdout)
+                                         judgement.assessment.result)
+    check.print_outputs([('report', args.report), ('figure', args.plot),
+                         ('statistics figure', args.stats_plot), ('pairs', args.pairs_csv),
+                         ('failed pairs figure', args.explain)], regions)
     code = exit_codes.of_outcome(judgement.assessment.outcome)
-    return code, judgement.monitor
+    return code, judgement

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.verdict import (Assessment, assessment_report, result_report,
-                                              scan_names, to_json)
+from map_consistency_ros.core.verdict import (Assessment, assessment_report, regions_alike,
+                                              result_report, scan_names, to_json)
 from map_consistency_ros.io.staging import staged
 
 __all__ = ['assessment_report', 'result_report', 'write_json', 'write_pairs_csv',
-           'format_summary', 'region_text']
+           'format_summary', 'region_text', 'scan_span']
 
 
 def write_json(path: str | Path, report: dict) -> None:
@@ -84,10 +84,24 @@ def format_summary(assessment: Assessment, source: str,
     if sum(counts.values()):
         lines.append('  failed pairs explained ' + ', '.join(
             f'{count} {name}' for name, count in counts.items()))
-    for region in assessment.misalignments[:_SHOWN_REGIONS]:
-        lines.append(f'  misaligned region     {region_text(region, ids)}')
+    if assessment.failed_not_explained:
+        # the classes and these add up to the failed pairs
+        lines.append(f'  not explained         {assessment.failed_not_explained} failed pairs '
+                     "(their scans pass the paper's test)")
+    for number, region in enumerate(assessment.misalignments[:_SHOWN_REGIONS], 1):
+        lines.append(f'  misaligned region {f"#{number}":<4}{region_text(region, ids)}')
     if len(assessment.misalignments) > _SHOWN_REGIONS:
-        lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions')
+        lines.append(f'  ... {len(assessment.misalignments) - _SHOWN_REGIONS} more regions '
+                     '(the report lists them all)')
+    if len(assessment.misalignments) > 1:
+        lines.append('  regions apart         one per place where displaced scans meet the '
+                     'scans they revisit: a stretch displaced once shows at each such place')
+    tolerance = assessment.settings.misalignment_tolerance
+    for group in regions_alike(assessment.misalignments, tolerance):
+        names = [f'#{index + 1}' for index in group]
+        lines.append(f'  move alike            {", ".join(names[:-1])} and {names[-1]}: '
+                     f'corrections within {tolerance:.2f} m of each other at their centroids '
+                     '(likely one displacement)')
     return '\n'.join(lines)
 
 
@@ -104,22 +118,39 @@ def region_text(region, ids: np.ndarray) -> str:
 
     Returns
     -------
-    One line, e.g. 'scans 12-40 (29) against scans 0-11 (12): 0.31 m RMS (dx ...), 57 pairs';
-    a region beyond local registration is called a gross error.
+    One line, e.g. '29 scans between 12 and 40 against 12 scans between 0 and 11: shifted
+    0.12 m and turned +1.90 deg at its centre (x 3.10 m, y -4.20 m), 0.31 m RMS over its end
+    points, 57 pairs'; a region beyond local registration is called a gross error.
     """
-    return f'{_span(ids[region.scans])} against {_span(ids[region.reference_scans])}: ' \
+    return f'{scan_span(ids[region.scans])} against {scan_span(ids[region.reference_scans])}: ' \
            f'{_size(region)}'
 
 
-def _span(ids: np.ndarray) -> str:
+def scan_span(ids: np.ndarray) -> str:
+    """Some scans in words: how many, and between which first and last name; a set of scans
+    is rarely a run, so never 'a-b'.
+
+    Parameters
+    ----------
+    ids: the scans' names.
+
+    Returns
+    -------
+    e.g. '28 scans between 48 and 774', 'scan 12', 'no scan'.
+    """
     if ids.size == 0:
         return 'no scan'
-    return f'scans {ids.min()}-{ids.max()} ({ids.size})' if ids.size > 1 else f'scan {ids[0]}'
+    return (f'{ids.size} scans between {ids.min()} and {ids.max()}' if ids.size > 1
+            else f'scan {ids[0]}')
 
 
 def _size(region) -> str:
     if not region.registered:
         return f'beyond local registration (a gross error), {region.pairs} pairs'
-    dx, dy, dtheta = region.correction
-    return (f'{region.displacement:.2f} m RMS (dx {dx:+.2f} m, dy {dy:+.2f} m, '
-            f'dtheta {np.degrees(dtheta):+.2f} deg), {region.pairs} pairs')
+    # stated where the region is: a world transform's dx, dy move the world origin, metres
+    # away from the region, and read as a contradiction of the RMS beside them
+    shift, (x, y) = region.shift_at_centroid, region.centroid
+    return (f'shifted {np.hypot(*shift):.2f} m and turned '
+            f'{np.degrees(region.correction[2]):+.2f} deg at its centroid '
+            f'(x {x:.2f} m, y {y:.2f} m), {region.displacement:.2f} m RMS over its end points, '
+            f'{region.pairs} pairs')

@@ -206,8 +206,8 @@ def _save_profile(path: Path, result: TuningResult, settings: TuningSettings,
     ax.set_xscale('function', functions=(lambda x: x ** 0.5, lambda x: x ** 2))
     ax.set_xlim(0.0, settings.phi_max * 1.03)  # keep a Phi* at the end visible
     ax.set_xticks([value for value in (0, 1, 4, 9, 16, 25, 36) if value <= settings.phi_max])
-    ax.set_xlabel('Phi (sqrt scale)')
-    ax.set_ylabel('M(Phi)')
+    ax.set_xlabel('DCS parameter Phi (square-root scale)')
+    ax.set_ylabel('average inconsistency M(Phi) [m]')
     ax.set_title(Path(source).name, fontsize=9)
     ax.legend(fontsize=7)
     plots.save_figure(figure, path)
@@ -219,5 +219,6 @@ def _save_maps(path: Path, profile: InconsistencyProfile, baseline_poses,
     figure, axes = plots.plt.subplots(1, 2, figsize=(14, 7))
     plots.plot_map(axes[0], profile.scans_at(baseline_poses), baseline_test, 'Phi = 1')
     plots.plot_map(axes[1], profile.scans_at(result.poses), tuned, f'Phi* = {result.phi:.4g}')
+    plots.lay_out(figure)  # two long titles side by side: wrapped, laid out on their extents
     plots.save_figure(figure, path)
 

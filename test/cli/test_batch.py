@@ -48,13 +48,15 @@ def test_each_input_is_judged_as_check_and_replay_judge_it(room_log, displaced_r
         assert row['exit_code'] == expected
         assert _first_line(capsys) == f'{row["input"]}: {row["summary_line"]}'
     (region,) = rows[1]['regions']
+    assert region['number'] == 1
     assert region['scans'][0] >= 30 and region['reference_scans'][1] < 30
     assert region['displacement_m'] == pytest.approx(0.4, abs=0.05)
     assert rows[2]['scans'] == 290 and rows[2]['changed_places'] > 0
     with open(table, newline='') as stream:
         cells = list(csv.DictReader(stream))
     assert [cell['verdict'] for cell in cells] == [row['verdict'] for row in rows]
-    assert ' against scans 0-' in cells[1]['regions'] and 'dx -0.39 m' in cells[1]['regions']
+    assert cells[1]['regions'].startswith('#1 ') and ' scans between 0 and ' in cells[1]['regions']
+    assert 'shifted 0.39 m' in cells[1]['regions']
     index = (page / 'index.html').read_text()
     for number, row in enumerate(rows[:3]):
         slug = batch._slug(number, row['input'])

@@ -48,11 +48,19 @@ def test_displaced_room_exits_1_and_names_scans(strict_json, displaced_room_log,
     out = capsys.readouterr().out
     assert code == 1
     assert 'INCONSISTENT: 1 misaligned region (largest 0.' in out
-    assert 'misaligned region     scans ' in out and 'dx -0.39 m' in out
+    # numbered, and its correction stated where it is: a shift of the room's 0.4 m
+    assert 'misaligned region #1  ' in out and ' scans between ' in out
+    assert 'shifted 0.39 m and turned ' in out and ' at its centroid (x ' in out
     content = strict_json(report.read_text())
     assert content['distorted'] is False and 0.0 <= content['local_distortion_m'] < 0.1
     (region,) = content['misalignments']
     assert min(region['scans']) >= 30 and max(region['reference_scans']) < 30
+    assert region['number'] == 1 and region['moves_alike_with'] == []
+    assert region['shift_at_centroid_m'] == pytest.approx(0.4, abs=0.015)
+    assert region['shift_at_centroid_dx_m'] == pytest.approx(-0.4, abs=0.015)
+    # the explained classes and the failed pairs not explained add up to the failed pairs
+    assert (sum(content['explained_pairs'].values()) + content['failed_pairs_not_explained']
+            == content['summary']['failed_pairs'])
     # The correction moves the displaced half back.
     assert region['dx_m'] == pytest.approx(-0.4, abs=0.01)
     assert region['dy_m'] == pytest.approx(0.0, abs=0.01)

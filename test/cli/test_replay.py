@@ -96,10 +96,10 @@ def test_round_trip_verdict(strict_json, round_trip):
 
 def test_round_trip_pairs(strict_json, round_trip):
     folder = round_trip[0]
-    # check names the viewpoints by record, replay by rank among its keyframes
-    rank = {record: index for index, record in enumerate(
-        strict_json((folder / 'check.json').read_text())['scans']['id'])}
-    checked = {(rank[i], rank[j]): row for (i, j), row in read_pairs(folder / 'check.csv').items()}
+    # both name a scan by its laser record's position in the input
+    assert (strict_json((folder / 'check.json').read_text())['scans']['id']
+            == strict_json((folder / 'replay.json').read_text())['scans']['id'])
+    checked = read_pairs(folder / 'check.csv')
     replayed = read_pairs(folder / 'replay.csv')
     assert checked.keys() == replayed.keys() and len(checked) > 400
     for key, row in checked.items():
@@ -382,8 +382,10 @@ def test_replay_of_recorded_node_inputs_matches_the_node(strict_json, wrong_loop
             assert node_report[key] == value, key
     assert node_report['paper_consistent'] == report['summary']['consistent']
     assert node_report['summary_line'] == report['summary_line']
+    # replay names keyframes by their laser records, the node by their stamps
+    stamp_of = dict(zip(report['scans']['id'], report['keyframe_stamps']))
     np.testing.assert_allclose(node_report['misaligned_scans'],
-                               np.array(report['keyframe_stamps'])[report['misaligned_scans']],
+                               [stamp_of[record] for record in report['misaligned_scans']],
                                atol=1e-6)
 
 
@@ -481,3 +483,62 @@ def test_bad_parameter_files(round_trip, tmp_path, capsys):
     params.write_text('just text')
     assert main(['replay', bag, '--quiet', '--params-file', str(params)]) == 2
     assert 'not a ROS 2 parameter file' in _one_line_error(capsys)
+
+
+@pytest.fixture(scope='module')
+def demo_and_excerpt(shared_data, tmp_path_factory):
+    """`replay` of the demo bag (the Intel log's first 290 laser records) and `check` of those
+    records, their reports and printed summaries; the titles of replay's statistics figure."""
+    from map_consistency_ros.cli import plots
+    from map_consistency_ros.cli.demo import demo_bag_path
+    folder = tmp_path_factory.mktemp('demo_and_excerpt')
+    log = carmen_excerpt(shared_data / 'intel' / 'intel.gfs.log', folder / 'intel.log', 290)
+    titles, save_figure = [], plots.save_figure
+
+    def keep_titles(figure, path):
+        titles.extend(ax.get_title() for ax in figure.axes)
+        save_figure(figure, path)
+
+    outputs = {}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(plots, 'save_figure', keep_titles)
+        for command, source in (('check', log), ('replay', demo_bag_path())):
+            report = folder / f'{command}.json'
+            out = printed_by_main(
+                [command, str(source), '--quiet', '--report', str(report)]
+                + (['--stats-plot', str(folder / 'psi.png')] if command == 'replay' else []))
+            outputs[command] = (report, out)
+    return outputs, titles
+
+
+def printed_by_main(arguments):
+    """main(arguments) in this process; what it printed."""
+    import contextlib
+    import io
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        main(arguments)
+    return printed.getvalue()
+
+
+def test_replay_and_check_name_scans_by_the_same_laser_records(strict_json, demo_and_excerpt):
+    outputs, _ = demo_and_excerpt
+    checked, replayed = (strict_json(outputs[command][0].read_text())
+                         for command in ('check', 'replay'))
+    ids = checked['scans']['id']
+    assert replayed['scans']['id'] == ids
+    for report in (checked, replayed):  # the explained classes and the rest: the failed pairs
+        assert (sum(report['explained_pairs'].values()) + report['failed_pairs_not_explained']
+                == report['summary']['failed_pairs'])
+    # folded records leave gaps: ranks among the keyframes would differ from these names
+    assert ids != list(range(len(ids))) and max(ids) == 289
+
+
+def test_statistics_figure_counts_the_pairs_the_summary_counts(strict_json, demo_and_excerpt):
+    outputs, titles = demo_and_excerpt
+    report, out = outputs['replay']
+    summary = strict_json(report.read_text())['summary']
+    failed, tested = summary['failed_pairs'], summary['tested_pairs']
+    assert f'failed pairs          {failed}\n' in out
+    assert f'({tested} with enough points to test)' in out
+    assert titles == [f'{failed} of {tested} tested pairs failed']

@@ -19,7 +19,7 @@ from map_consistency_ros.core.verdict.explanation import (CHANGE, CONSISTENT, IN
                                                           corrections_confirmed, explain,
                                                           longest_run, longest_travel,
                                                           misaligned_endpoints,
-                                                          place_labels)
+                                                          place_labels, regions_alike)
 from map_consistency_ros.core.verdict.reporting import (assessment_report, joined_json, plain,
                                                         result_report, scan_names, to_json)
 
@@ -27,7 +27,7 @@ __all__ = [
     'RegistrationSettings', 'SurfacePoints', 'Registrations', 'surface_points',
     'register_submaps',
     'ExplanationSettings', 'Misalignment', 'ChangedPlace', 'Assessment', 'RegistrationCache',
-    'explain', 'check_map', 'misaligned_endpoints',
+    'explain', 'check_map', 'misaligned_endpoints', 'regions_alike',
     'CONSISTENT', 'INCONSISTENT', 'NOTHING_TO_JUDGE', 'Evidence', 'evidence',
     'flaggable_pair_count',
     'PairClass', 'MISALIGNED', 'MINOR', 'CHANGE', 'UNREGISTERED', 'PAIR_CLASSES',

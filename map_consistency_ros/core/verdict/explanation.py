@@ -25,7 +25,7 @@ points are grouped into changed places and reported. `strict` keeps the paper's 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numba
@@ -130,6 +130,23 @@ class Misalignment:
     # its size is measured: by its submaps' agreeing registrations or, beyond their reach, by
     # registering the whole region onto its reference scans (_register_region)
     registered: bool
+    # (2,) metres: the mean of the region's end points. A world transform's translation is
+    # its motion of the world origin, metres away from the region on a large map; the motion
+    # of this point is the region's own (shift_at_centroid)
+    centroid: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+
+    @property
+    def shift_at_centroid(self) -> np.ndarray:
+        """Where the correction moves the region's centroid: the region's shift where the
+        robot saw it, beside its rotation `correction[2]`.
+
+        Returns
+        -------
+        (2,) metres (dx, dy) in the world frame; NaN for a region without a correction or a
+        centroid.
+        """
+        centre = np.array([self.centroid[0], self.centroid[1], 0.0])
+        return se2.compose(self.correction, centre)[:2] - centre[:2]
 
 
 @dataclass(frozen=True)
@@ -215,6 +232,51 @@ class Assessment:
         counts = np.bincount(self.pair_classes, minlength=len(PAIR_CLASSES))
         return {name: int(counts[code]) for code, name in enumerate(PAIR_CLASSES)}
 
+    @property
+    def failed_not_explained(self) -> int:
+        """Failed pairs the second stage leaves unexplained: those of two scans that pass the
+        paper's test, whose failures cannot change the verdict (the class counts and these add
+        up to the failed pairs)."""
+        return self.result.failed_pair_count - int(self.explained_pairs.size)
+
+    def pair_class(self, rows: np.ndarray) -> list[str]:
+        """The class of some pairs of the paper's test.
+
+        Parameters
+        ----------
+        rows: rows of result.pairs.
+
+        Returns
+        -------
+        The name of each pair's class in PAIR_CLASSES, 'not explained' for a pair the second
+        stage did not explain, 'passed' for one that did not fail.
+        """
+        code = dict(zip(self.explained_pairs.tolist(), self.pair_classes.tolist()))
+        return [PAIR_CLASSES[code[row]].value if row in code
+                else 'not explained' if self.result.failed[row] else 'passed'
+                for row in np.asarray(rows).tolist()]
+
+    def region_pairs(self, region: Misalignment) -> np.ndarray:
+        """The failed pairs between a region and its reference scans, the pairs behind it.
+
+        Parameters
+        ----------
+        region: one of this assessment's regions (misalignments or minor_misalignments).
+
+        Returns
+        -------
+        Rows of result.pairs, the largest statistic first.
+        """
+        result = self.result
+        moved = np.zeros(result.scan_count, dtype=bool)
+        moved[region.scans] = True
+        reference = np.zeros(result.scan_count, dtype=bool)
+        reference[region.reference_scans] = True
+        first, second = result.pairs[:, 0], result.pairs[:, 1]
+        rows = np.flatnonzero(result.failed & ((moved[first] & reference[second])
+                                               | (reference[first] & moved[second])))
+        return rows[np.argsort(-result.statistic[rows], kind='stable')]
+
     def summary_line(self) -> str:
         """The verdict in one line of text.
 
@@ -263,6 +325,43 @@ class Assessment:
         return f'{verdict}: {distortion}{regions} ({size}); {changes}'
 
 
+def regions_alike(regions: tuple[Misalignment, ...], tolerance: float) -> list[list[int]]:
+    """Groups of regions that move alike: their corrections place each region's centroid
+    within `tolerance` of each other. Regions are counted apart where their scans are not
+    joined by failing pairs or by consecutive viewpoints, so a stretch displaced once makes a
+    region at every place where it meets the scans it revisits; regions that move alike are
+    likely such one displacement.
+
+    Parameters
+    ----------
+    regions: misaligned regions, in the order the outputs number them.
+    tolerance: metres (the map's misalignment_tolerance).
+
+    Returns
+    -------
+    The groups of two or more, each the sorted indices into `regions`, by their first
+    index; regions without a correction or a centroid join none.
+    """
+    known = [index for index, region in enumerate(regions)
+             if np.all(np.isfinite(region.correction)) and np.all(np.isfinite(region.centroid))]
+    links = []
+    for position, a in enumerate(known):
+        for b in known[position + 1:]:
+            first, second = regions[a], regions[b]
+            if all(np.hypot(*(se2.compose(one.correction, [*at.centroid, 0.0])[:2]
+                              - se2.compose(other.correction, [*at.centroid, 0.0])[:2]))
+                   <= tolerance for one, other, at in ((first, second, first),
+                                                       (first, second, second))):
+                links.append((a, b))
+    if not links:
+        return []
+    labels = _components(len(regions), np.array(links))
+    groups = {}
+    for index in sorted({member for link in links for member in link}):
+        groups.setdefault(int(labels[index]), []).append(index)
+    return sorted(groups.values())
+
+
 def _local_distortion(result: ConsistencyResult) -> float:
     """Metres: the mean inconsistency distance between the median scan of the map and its
     temporal neighbours, the half-normal mean sqrt(2 / pi) s of the median of the map's own
@@ -273,10 +372,24 @@ def _local_distortion(result: ConsistencyResult) -> float:
 
 
 def _largest(misalignments: tuple[Misalignment, ...]) -> Misalignment:
-    unregistered = [item for item in misalignments if not item.registered]
-    if unregistered:
-        return max(unregistered, key=lambda item: item.pairs)
-    return max(misalignments, key=lambda item: item.displacement)
+    return _by_size(misalignments)[0]
+
+
+def _by_size(regions: tuple[Misalignment, ...]) -> tuple[Misalignment, ...]:
+    """Regions in the order the outputs number them: the region that the summary line names
+    first (a gross error, beyond local registration, by its pairs; else the largest
+    displacement), then the others the same way.
+
+    Parameters
+    ----------
+    regions: misaligned regions.
+
+    Returns
+    -------
+    The same regions, reordered (stable among equals).
+    """
+    return tuple(sorted(regions, key=lambda item: (
+        (0, -item.pairs) if not item.registered else (1, -item.displacement))))
 
 
 def _submap(block: int, settings: ExplanationSettings, scan_count: int) -> tuple[int, int]:
@@ -771,7 +884,8 @@ def _regions(scans: ScanSet, result: ConsistencyResult, explained: np.ndarray,
         regions.append(Misalignment(scans=moved, reference_scans=reference,
                                     correction=correction, correction_std=spread,
                                     displacement=displacement, pairs=int(rows.size),
-                                    registered=bool(registered)))
+                                    registered=bool(registered),
+                                    centroid=moments.pooled(moved).mean[0]))
     return tuple(regions)
 
 
@@ -834,7 +948,7 @@ def _regions_among_changes(scans: ScanSet, moments: PointMoments, pairs: np.ndar
                                          correction=correction,
                                          correction_std=_median_std(covariances[rows]),
                                          displacement=displacement, pairs=int(rows.size),
-                                         registered=True)))
+                                         registered=True, centroid=points.mean[0])))
     return found
 
 
@@ -1117,8 +1231,10 @@ def explain(scans: ScanSet, result: ConsistencyResult,
     # however far the single registrations behind it strayed.
     within = [region.registered and region.displacement <= settings.misalignment_tolerance
               for region in regions]
-    minor = tuple(region for region, small in zip(regions, within) if small)
-    misalignments = tuple(region for region, small in zip(regions, within) if not small)
+    # numbered in this order by every output (#1 the region that fails the map)
+    minor = _by_size(tuple(region for region, small in zip(regions, within) if small))
+    misalignments = _by_size(tuple(region for region, small in zip(regions, within)
+                                   if not small))
     flagged = _region_scans(misalignments, scans.scan_count)
     changes = _changes(scans, result, rows[codes == _CLASS_CODE[CHANGE]], settings)
     return Assessment(result=result, settings=settings, explained_pairs=rows, pair_classes=codes,
@@ -1148,10 +1264,11 @@ def check_map(scans: ScanSet, parameters: ConsistencyParameters | None = None,
 
 
 def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int = 200,
-                         min_depth: float = 0.0) -> np.ndarray:
+                         min_depth: float = 0.0,
+                         region: Misalignment | None = None) -> np.ndarray:
     """End points inside the other scan's polygon in the pairs behind the verdict: the
     misaligned and unregistered pairs of flagged scans (strict: every failed pair of flagged
-    scans).
+    scans), or the failed pairs behind one region.
 
     Parameters
     ----------
@@ -1159,12 +1276,17 @@ def misaligned_endpoints(scans: ScanSet, assessment: Assessment, max_pairs: int 
     assessment: the verdict.
     max_pairs: only the pairs with the largest statistic, this many.
     min_depth: a point counts when it lies deeper than this many times the pair's scale.
+    region: one region of the assessment: its failed pairs with its reference scans
+        (Assessment.region_pairs) instead; None: the pairs behind the verdict.
 
     Returns
     -------
     (M, 2) world end points, metres.
     """
     result = assessment.result
+    if region is not None:
+        return pair_endpoints(scans, result, assessment.region_pairs(region)[:max_pairs],
+                              min_depth)[0]
     if assessment.settings.strict:
         return inconsistent_endpoints(scans, result, max_pairs, min_depth)
     flagged = assessment.misaligned_scans

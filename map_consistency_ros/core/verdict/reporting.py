@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyResult
-from map_consistency_ros.core.verdict.explanation import Assessment
+from map_consistency_ros.core.verdict.explanation import Assessment, regions_alike
 
 
 def scan_names(result: ConsistencyResult, scan_ids: np.ndarray | None) -> np.ndarray:
@@ -70,6 +70,11 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
     The report dict (numpy values; `to_json` makes it text).
     """
     ids = scan_names(assessment.result, scan_ids)
+    # the numbers of the other regions each region moves alike with (likely one displacement)
+    alike = {index: [other + 1 for other in group if other != index]
+             for group in regions_alike(assessment.misalignments,
+                                        assessment.settings.misalignment_tolerance)
+             for index in group}
     content = result_report(assessment.result, scan_ids)
     content.update({
         'verdict': assessment.outcome,
@@ -83,12 +88,16 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
         'paper_verdict': 'consistent' if assessment.result.consistent else 'inconsistent',
         'explanation': assessment.settings.as_dict(),
         'explained_pairs': assessment.class_counts(),
+        # with the explained ones, the failed pairs: those of two scans passing the paper's test
+        'failed_pairs_not_explained': assessment.failed_not_explained,
         'misaligned_scans': ids[np.flatnonzero(assessment.flagged)],
         'local_distortion_m': assessment.local_distortion,
         'distorted': assessment.distorted,
-        'misalignments': [_region(region, ids) for region in assessment.misalignments],
-        'minor_misalignments': [_region(region, ids)
-                                for region in assessment.minor_misalignments],
+        'misalignments': [dict(_region(region, ids, number),
+                               moves_alike_with=alike.get(number - 1, []))
+                          for number, region in enumerate(assessment.misalignments, 1)],
+        'minor_misalignments': [_region(region, ids, number) for number, region in enumerate(
+            assessment.minor_misalignments, len(assessment.misalignments) + 1)],
         'changes': [{'scans': ids[place.scans], 'x': place.x, 'y': place.y,
                      'points': place.points} for place in assessment.changes],
         'frozen_estimates': [{'scans': ids[stretch.scans], 'changes': stretch.changes}
@@ -97,9 +106,17 @@ def assessment_report(assessment: Assessment, scan_ids: np.ndarray | None = None
     return content
 
 
-def _region(region, ids: np.ndarray) -> dict:
+def _region(region, ids: np.ndarray, number: int) -> dict:
+    # number: #k of the printed summary and the figures (misalignments first, then the minor
+    # regions); dx_m, dy_m and dtheta_deg are the correction as a world transform (rotation
+    # about the world origin), the shift_at_centroid fields the same motion where the region is
+    shift = region.shift_at_centroid
     return {
+        'number': number,
         'scans': ids[region.scans], 'reference_scans': ids[region.reference_scans],
+        'centroid_x_m': region.centroid[0], 'centroid_y_m': region.centroid[1],
+        'shift_at_centroid_m': float(np.hypot(*shift)),
+        'shift_at_centroid_dx_m': shift[0], 'shift_at_centroid_dy_m': shift[1],
         'dx_m': region.correction[0], 'dy_m': region.correction[1],
         'dtheta_deg': np.degrees(region.correction[2]),
         'std_dx_m': region.correction_std[0], 'std_dy_m': region.correction_std[1],
