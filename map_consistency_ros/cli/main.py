@@ -34,7 +34,14 @@ SUBCOMMANDS = [
 ]
 
 
-def _version() -> str:
+def package_version() -> str:
+    """The installed package's version, for --version and the pages that say what made them.
+
+    Returns
+    -------
+    The version string; 'unknown (not installed)' when run from a source tree that was never
+    installed.
+    """
     try:
         return version('map_consistency_ros')
     except PackageNotFoundError:  # run from a source tree that was never installed
@@ -62,7 +69,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                '--ros-args --params-file config/map_consistency.yaml (topics, services, '
                'parameters: docs/node.md). Every subcommand takes --help.',
     )
-    parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
+    parser.add_argument('--version', action='version', version=f'%(prog)s {package_version()}')
     parser.add_argument('--debug', action='store_true', help=_DEBUG_HELP)
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
