@@ -11,7 +11,8 @@ input forms:
   GRAPH.g2o --scans LOG     scans from a CARMEN log instead: laser record k is the scan of
                             the k-th vertex in id order
   --build LOG RELATIONS BAG build the graph from a corrected CARMEN log, a relations file and
-                            the raw bag (see io/datasets.py); --save-graph keeps it as g2o
+                            the raw bag (odometry edges from the bag's /odom, loop closures
+                            from the relations); --save-graph keeps it as g2o
 
 examples:
   map-consistency tune intel_graph.g2o --report out/tune.json --profile-plot out/profile.png
