@@ -370,6 +370,7 @@ def run(args: argparse.Namespace) -> int:
     """
     if args.workers is not None and args.workers < 1:
         raise InputError('options', f'--workers must be at least 1, got {args.workers}')
+    options.check_sensor_options(args)
     file_values = {}
     if args.params_file is not None:
         file_values = read_parameter_file(args.params_file)

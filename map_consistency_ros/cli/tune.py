@@ -131,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise InputError('options', str(error)) from None
     settings, parameters, explanation = config.tuning, config.consistency, config.explanation
+    options.check_sensor_options(args)
     content, log = load_graph(args)
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)

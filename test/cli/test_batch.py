@@ -313,3 +313,4 @@ def test_a_thumbnail_shows_the_first_misaligned_region_or_the_whole_map(displace
     assert box[2] - box[0] <= np.ptp(moved[:, 0]) + 2 * max(2.0, 0.1 * np.ptp(moved, axis=0).max())
     whole = batch._namespace('check', str(room_log()[0]), dict(viewpoint_spacing=0.0))
     assert batch._region_box(check.judge(whole).scans, check.judge(whole).assessment) is None
+
