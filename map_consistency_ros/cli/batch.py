@@ -215,7 +215,7 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
             args = _namespace('check', path, given, _check_file_values(file_values))
             judgement = check.judge(args)
             scan_ids = judgement.scan_ids
-        row['runtime_seconds'] = time.perf_counter() - started
+        row['runtime_seconds'] = _seconds(started)
         _describe(row, judgement.assessment, scan_ids)
         code = exit_codes.of_outcome(judgement.assessment.outcome)
         if figures:
@@ -229,9 +229,15 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
         frame = traceback.extract_tb(error.__traceback__)[-1]
         row['error'] = (f'internal error: {type(error).__name__}: {error} '
                         f'({Path(frame.filename).name}:{frame.lineno})')
-    row.setdefault('runtime_seconds', time.perf_counter() - started)
+    row.setdefault('runtime_seconds', _seconds(started))
     row.update(verdict=VERDICTS[code], exit_code=code)
     return row
+
+
+def _seconds(started: float) -> float:
+    """Seconds since `started`, to the millisecond: finer digits are timer noise, not a
+    measure of the input."""
+    return round(time.perf_counter() - started, 3)
 
 
 def _namespace(command: str, path: str, given: dict, base: dict | None = None

@@ -314,3 +314,17 @@ def test_a_thumbnail_shows_the_first_misaligned_region_or_the_whole_map(displace
     whole = batch._namespace('check', str(room_log()[0]), dict(viewpoint_spacing=0.0))
     assert batch._region_box(check.judge(whole).scans, check.judge(whole).assessment) is None
 
+
+def test_one_input_is_counted_in_the_singular_and_runtimes_are_kept_to_the_millisecond(
+        room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    table = tmp_path / 'table.csv'
+    assert main(['batch', str(path), '--workers', '1', '--quiet', '--csv', str(table)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r'1 input in [0-9.]+ s: 1 map judged \(1 consistent\)', printed[-2])
+    with open(table, newline='') as stream:
+        (row,) = csv.DictReader(stream)
+    assert re.fullmatch(r'\d+(\.\d{1,3})?', row['runtime_seconds'])
+    assert main(['batch', str(tmp_path / 'absent.log'), '--quiet']) == 2
+    assert re.fullmatch(r'1 input in [0-9.]+ s: 0 maps judged, 1 bad input',
+                        capsys.readouterr().out.splitlines()[-1])
