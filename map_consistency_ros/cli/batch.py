@@ -9,8 +9,9 @@ The table (printed; --csv, --json) has one row per input: input, kind, verdict, 
 the misaligned regions with their sizes, the number of changed places, the runtime (reading
 and judging, in the worker) and the error of an input that could not be judged. Inputs are
 judged on a local process pool (--workers) or on a Dask distributed cluster (--scheduler);
-see docs/batch.md. --html DIR writes an index page with a thumbnail per map, each linking to
-the map's figure and JSON report.
+see docs/batch.md. --html DIR writes an index page: the counts by verdict, the table sorted by
+a click on a header and filtered by text and verdict, and a thumbnail of each map's first
+misaligned region linking to the map's figure and JSON report.
 
 Exit code: the worst over the inputs: 3 when a job failed unexpectedly (a bug, or a worker
 that died), else 2 when an input is bad, else 1 when a map is inconsistent, else 0. Inputs
@@ -99,8 +100,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument('--csv', type=Path, metavar='CSV', help='write the table as CSV')
     output.add_argument('--json', type=Path, metavar='JSON', help='write the table as JSON')
     output.add_argument('--html', type=Path, metavar='DIR',
-                        help='write DIR/index.html: a row and a thumbnail per map, linking to '
-                             'its figure and JSON report (and the table as CSV and JSON)')
+                        help='write DIR/index.html: counts by verdict, a row per input that '
+                             'sorts and filters, a thumbnail per map linking to its figure and '
+                             'JSON report (and the table as CSV and JSON)')
     output.add_argument('--quiet', action='store_true', help='no progress bar')
     parser.add_argument('--every', type=int, default=1, metavar='N',
                         help='logs and graphs: test every N-th laser record only (default '
