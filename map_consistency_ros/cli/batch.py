@@ -416,7 +416,7 @@ def _parameters_used(args: argparse.Namespace, file_values: dict) -> dict:
     values = {name: value for name, value in file_values.items()}
     defaults = vars(build_defaults())
     for name, value in _given(args).items():
-        if name not in defaults or defaults[name] != value:
+        if name != 'debug' and (name not in defaults or defaults[name] != value):
             values[name] = value
     if args.params_file is not None:
         values['params_file'] = str(args.params_file)

@@ -292,7 +292,10 @@ def test_the_html_page_counts_sorts_and_filters_in_a_browser(room_log, displaced
     texts = _view(index, '#filter=DISPLACED').rows
     assert [row['hidden'] for row in texts] == [True, False, True, True]
     text = index.read_text()
-    assert '<td>alpha</td><td>0.05</td>' in text and 'map_consistency_ros ' in text
+    given = re.search(r'<table class="parameters">(.*?)</table>', text).group(1)
+    assert re.findall(r'<td>(\w+)</td><td>([^<]*)</td>', given) == [('alpha', '0.05'),
+                                                                  ('viewpoint_spacing', '0.0')]
+    assert re.search(r'map_consistency_ros \S+, \d{4}-\d\d-\d\d \d\d:\d\d UTC', text)
     assert 'http' not in text.replace('http-equiv', '')  # nothing fetched from a network
     # thumbnails of several rows fit on a screen
     from PIL import Image
