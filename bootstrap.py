@@ -7,10 +7,12 @@
 Only python3 is needed: the venv gets the package (editable), ROS 2 Jazzy's Python
 client from PyPI and the test tools, then its compiled kernels are cached
 (`map-consistency warm-up`). The venv is rebuilt when setup.py or constraints.txt
-change.
+change. `test` also installs Debian's chromium when it is missing and apt-get can (as root):
+the test of batch's HTML page renders it in a headless browser.
 """
 import hashlib
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -58,6 +60,19 @@ def ensure_venv() -> None:
     STAMP.write_text(fingerprint)
 
 
+def ensure_browser() -> None:
+    """A headless Chromium for the test of batch's HTML page (test/cli/test_batch.py): on a
+    Debian machine where this runs as root, its package is installed once; elsewhere that test
+    says what to install."""
+    if shutil.which('chromium') or shutil.which('chromium-browser'):
+        return
+    if os.geteuid() != 0 or not shutil.which('apt-get'):
+        return
+    if _run(['apt-get', 'install', '-y', '-q', 'chromium']) != 0:
+        print('bootstrap: installing chromium failed; the HTML page test will fail',
+              file=sys.stderr)
+
+
 def main() -> int:
     if len(sys.argv) < 2 or sys.argv[1] not in ('demo', 'test'):
         print(__doc__)
@@ -69,6 +84,7 @@ def main() -> int:
         # The demo exits 0 when the corrected map passes and the broken copy fails.
         return _run([str(VENV / 'bin' / 'map-consistency'), 'demo',
                      '--output', str(DEMO_OUTPUT), *extra])
+    ensure_browser()
     os.environ.setdefault('PYTHONUNBUFFERED', '1')
     return _run([str(PYTHON), '-m', 'pytest', *extra])
 

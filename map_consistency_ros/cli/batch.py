@@ -9,8 +9,9 @@ The table (printed; --csv, --json) has one row per input: input, kind, verdict, 
 the misaligned regions with their sizes, the number of changed places, the runtime (reading
 and judging, in the worker) and the error of an input that could not be judged. Inputs are
 judged on a local process pool (--workers) or on a Dask distributed cluster (--scheduler);
-see docs/batch.md. --html DIR writes an index page with a thumbnail per map, each linking to
-the map's figure and JSON report.
+see docs/batch.md. --html DIR writes an index page: the counts by verdict, the table sorted by
+a click on a header and filtered by text and verdict, and a thumbnail of each map's first
+misaligned region linking to the map's figure and JSON report.
 
 Exit code: the worst over the inputs: 3 when a job failed unexpectedly (a bug, or a worker
 that died), else 2 when an input is bad, else 1 when a map is inconsistent, else 0. Inputs
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import datetime
 import glob
 import html
 import io
@@ -41,7 +43,8 @@ import numpy as np
 
 from map_consistency_ros.cli import check, exit_codes, options, pool, replay, report
 from map_consistency_ros.cli.exit_codes import (EXIT_BAD_INPUT, EXIT_CONSISTENT,
-                                                EXIT_INTERNAL_ERROR)
+                                                EXIT_INCONSISTENT, EXIT_INTERNAL_ERROR,
+                                                EXIT_NOTHING_TO_JUDGE)
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.live import FeedSettings, MonitorSettings
@@ -62,7 +65,8 @@ CARMEN, GRAPH, ROS1_BAG, ROS2_BAG = 'carmen log', 'g2o graph', 'ros1 bag', 'ros2
 _SUFFIXES = {'.log': CARMEN, '.log.gz': CARMEN, '.clf': CARMEN, '.clf.gz': CARMEN,
              '.gfs': CARMEN, '.g2o': GRAPH, '.bag': ROS1_BAG, '.mcap': ROS2_BAG}
 _ROS2_METADATA = 'metadata.yaml'
-_THUMBNAIL_PIXELS = 240  # the longer side of a map's thumbnail on the HTML page
+THUMBNAIL_HEIGHT = 120  # pixels: several rows of the HTML page fit on a screen
+_THUMBNAIL_MARGIN = 2.0  # metres around a region's scans: its surroundings show what it is
 
 # options of `batch` itself: never passed on to check / replay
 _OWN = ('inputs', 'workers', 'scheduler', 'csv', 'json', 'html', 'quiet', 'params_file',
@@ -96,8 +100,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument('--csv', type=Path, metavar='CSV', help='write the table as CSV')
     output.add_argument('--json', type=Path, metavar='JSON', help='write the table as JSON')
     output.add_argument('--html', type=Path, metavar='DIR',
-                        help='write DIR/index.html: a row and a thumbnail per map, linking to '
-                             'its figure and JSON report (and the table as CSV and JSON)')
+                        help='write DIR/index.html: counts by verdict, a row per input that '
+                             'sorts and filters, a thumbnail per map linking to its figure and '
+                             'JSON report (and the table as CSV and JSON)')
     output.add_argument('--quiet', action='store_true', help='no progress bar')
     parser.add_argument('--every', type=int, default=1, metavar='N',
                         help='logs and graphs: test every N-th laser record only (default '
@@ -212,7 +217,7 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
             args = _namespace('check', path, given, _check_file_values(file_values))
             judgement = check.judge(args)
             scan_ids = judgement.scan_ids
-        row['runtime_seconds'] = time.perf_counter() - started
+        row['runtime_seconds'] = _seconds(started)
         _describe(row, judgement.assessment, scan_ids)
         code = exit_codes.of_outcome(judgement.assessment.outcome)
         if figures:
@@ -226,9 +231,15 @@ def judge_input(item: tuple[str, str | None], given: dict, file_values: dict,
         frame = traceback.extract_tb(error.__traceback__)[-1]
         row['error'] = (f'internal error: {type(error).__name__}: {error} '
                         f'({Path(frame.filename).name}:{frame.lineno})')
-    row.setdefault('runtime_seconds', time.perf_counter() - started)
+    row.setdefault('runtime_seconds', _seconds(started))
     row.update(verdict=VERDICTS[code], exit_code=code)
     return row
+
+
+def _seconds(started: float) -> float:
+    """Seconds since `started`, to the millisecond: finer digits are timer noise, not a
+    measure of the input."""
+    return round(time.perf_counter() - started, 3)
 
 
 def _namespace(command: str, path: str, given: dict, base: dict | None = None
@@ -284,21 +295,60 @@ def _number(value: float) -> float | None:
 
 
 def _files(args: argparse.Namespace, judgement, scan_ids) -> dict[str, bytes]:
-    """The map figure, a thumbnail of it and the JSON report that `check` / `replay` would
-    write with --plot and --report."""
-    from PIL import Image  # matplotlib's own dependency
+    """The map figure and the JSON report that `check` / `replay` would write with --plot and
+    --report, and a thumbnail of the map's worst place (`_thumbnail`)."""
     with tempfile.TemporaryDirectory(prefix='map-consistency-batch-') as folder:
         folder = Path(folder)
         args.report, args.plot = folder / 'report.json', folder / 'map.png'
         args.pairs_csv = args.explain = None
         check.write_outputs(args, judgement.scans, judgement.assessment, judgement.details,
                             scan_ids)
-        thumbnail = io.BytesIO()
-        with Image.open(args.plot) as picture:
-            picture.thumbnail((_THUMBNAIL_PIXELS, _THUMBNAIL_PIXELS))
-            picture.save(thumbnail, format='PNG')
-        return {'figure': args.plot.read_bytes(), 'thumbnail': thumbnail.getvalue(),
+        return {'figure': args.plot.read_bytes(),
+                'thumbnail': _thumbnail(judgement.scans, judgement.assessment),
                 'report': args.report.read_bytes()}
+
+
+def _thumbnail(scans, assessment) -> bytes:
+    """A PNG THUMBNAIL_HEIGHT pixels high of the map around its first misaligned region (the
+    region's scans' end points and positions, with a margin), or of the whole map when it has
+    none: a reader of the page sees the place to look at before opening the figure."""
+    from PIL import Image  # matplotlib's own dependency
+
+    from map_consistency_ros.cli import plots
+    figure, ax = plots.plt.subplots(figsize=(3.0, 3.0))
+    try:
+        plots.plot_map(ax, scans, assessment)
+        legend = ax.get_legend()
+        if legend is not None:
+            legend.remove()
+        ax.set_title('')
+        ax.set_axis_off()
+        box = _region_box(scans, assessment)
+        if box is not None:
+            ax.set_xlim(box[0], box[2])
+            ax.set_ylim(box[1], box[3])
+        buffer = io.BytesIO()
+        figure.savefig(buffer, format='png', dpi=100, bbox_inches='tight', pad_inches=0.02)
+    finally:
+        plots.plt.close(figure)
+    thumbnail = io.BytesIO()
+    with Image.open(buffer) as picture:
+        width = max(1, round(picture.width * THUMBNAIL_HEIGHT / picture.height))
+        picture.resize((width, THUMBNAIL_HEIGHT), Image.LANCZOS).save(thumbnail, format='PNG')
+    return thumbnail.getvalue()
+
+
+def _region_box(scans, assessment) -> tuple[float, float, float, float] | None:
+    """(xmin, ymin, xmax, ymax) of the first misaligned region's scans with a margin of a
+    tenth of its size, at least _THUMBNAIL_MARGIN; None without a region."""
+    if not assessment.misalignments:
+        return None
+    rows = np.asarray(assessment.misalignments[0].scans)
+    points = np.concatenate([scans.endpoints[rows][scans.valid[rows]],
+                             scans.sensor_poses[rows, :2]])
+    low, high = points.min(axis=0), points.max(axis=0)
+    margin = max(_THUMBNAIL_MARGIN, 0.1 * float((high - low).max()))
+    return low[0] - margin, low[1] - margin, high[0] + margin, high[1] + margin
 
 
 # -- the batch ------------------------------------------------------------------------------
@@ -329,6 +379,7 @@ def run(args: argparse.Namespace) -> int:
     """
     if args.workers is not None and args.workers < 1:
         raise InputError('options', f'--workers must be at least 1, got {args.workers}')
+    options.check_sensor_options(args)
     file_values = {}
     if args.params_file is not None:
         file_values = read_parameter_file(args.params_file)
@@ -348,17 +399,41 @@ def run(args: argparse.Namespace) -> int:
     files = [row.pop('files', None) for row in rows]
     elapsed = time.perf_counter() - started
     print(format_table(rows))
-    print(f'{len(rows)} inputs in {elapsed:.1f} s: ' + ', '.join(
-        f'{sum(row["exit_code"] == code for row in rows)} {name}'
-        for code, name in VERDICTS.items()))
+    inputs, found = count_text(rows).split(': ', 1)
+    print(f'{inputs} in {elapsed:.1f} s: {found}')
     for path, writer in ((args.csv, write_csv), (args.json, write_table_json)):
         if path is not None:
             writer(path, rows)
             print(f'  {path}')
     if figures:
-        index = write_html(args.html, rows, files)
+        index = write_html(args.html, rows, files, _parameters_used(args, file_values))
         print(f'  {index}')
     return exit_codes.worst(row['exit_code'] for row in rows)
+
+
+def _parameters_used(args: argparse.Namespace, file_values: dict) -> dict:
+    """The values the inputs were judged with beside their commands' defaults: the parameter
+    file's, then the options given on the command line (batch's own left out)."""
+    values = {name: value for name, value in file_values.items()}
+    defaults = vars(build_defaults())
+    for name, value in _given(args).items():
+        if name != 'debug' and (name not in defaults or defaults[name] != value):
+            values[name] = value
+    if args.params_file is not None:
+        values['params_file'] = str(args.params_file)
+    return values
+
+
+def build_defaults() -> argparse.Namespace:
+    """batch's options as parsed from no option at all.
+
+    Returns
+    -------
+    The namespace of `batch INPUT` (its defaults; the parameter options are absent).
+    """
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return parser.parse_args(['input'])
 
 
 def _died(item: tuple[str, str | None], died: pool.WorkerDied) -> dict:
@@ -431,9 +506,75 @@ def _slug(index: int, path: str) -> str:
     return f'{index:03d}_{name}'
 
 
-def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path:
+# the verdicts in the order a reader takes them in: the maps judged, then the inputs that were not
+SHOWN_ORDER = (EXIT_CONSISTENT, EXIT_INCONSISTENT, EXIT_NOTHING_TO_JUDGE, EXIT_BAD_INPUT,
+               EXIT_INTERNAL_ERROR)
+_JUDGED = (EXIT_CONSISTENT, EXIT_INCONSISTENT, EXIT_NOTHING_TO_JUDGE)
+
+
+def plural(count: int, noun: str, nouns: str | None = None) -> str:
+    """A count and its noun, in the plural unless the count is one.
+
+    Parameters
+    ----------
+    count: how many.
+    noun: the singular ('input', 'bad input').
+    nouns: the plural; None: the singular and an 's'.
+
+    Returns
+    -------
+    E.g. '1 input', '8 inputs', '2 maps judged'.
+    """
+    return f'{count} {noun if count == 1 else nouns or noun + "s"}'
+
+
+def verdict_counts(rows: list[dict]) -> dict[int, int]:
+    """How many rows have each exit code.
+
+    Parameters
+    ----------
+    rows: the rows of `judge_input`.
+
+    Returns
+    -------
+    exit code -> count, for every code of SHOWN_ORDER in that order (zeros included).
+    """
+    return {code: sum(row['exit_code'] == code for row in rows) for code in SHOWN_ORDER}
+
+
+def count_text(rows: list[dict]) -> str:
+    """What the batch found, maps apart from inputs that could not be judged: the line printed
+    after the table and the title of the HTML page.
+
+    Parameters
+    ----------
+    rows: the rows of `judge_input`.
+
+    Returns
+    -------
+    E.g. '8 inputs: 6 maps judged (4 consistent, 1 inconsistent, 1 nothing to judge),
+    2 bad inputs'; verdicts counting none are left out, the maps judged never.
+    """
+    counts = verdict_counts(rows)
+    judged = sum(counts[code] for code in _JUDGED)
+    verdicts = ', '.join(f'{counts[code]} {VERDICTS[code]}' for code in _JUDGED if counts[code])
+    parts = [plural(judged, 'map judged', 'maps judged') + (f' ({verdicts})' if verdicts else '')]
+    parts += [plural(counts[code], VERDICTS[code])
+              for code in (EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR) if counts[code]]
+    return f'{plural(len(rows), "input")}: ' + ', '.join(parts)
+
+
+def write_html(folder: Path, rows: list[dict], files: list[dict | None],
+               parameters: dict | None = None) -> Path:
     """Write DIR/index.html, DIR/maps/* (figure, thumbnail, report per map) and
     DIR/batch.csv/.json.
+
+    The page holds the counts by verdict, the parameters, the package version and the date,
+    and the table: a row per input with a thumbnail of its map's worst place, sorted by a
+    click on a column's header and filtered by a text box and a box per verdict. Its small
+    inline script needs no network and no other file; the page's address fragment holds the
+    view (#sort=runtime_seconds, #sort=-scans, &filter=TEXT, &hide=bad-input,consistent), so a
+    link shows the same view.
 
     Parameters
     ----------
@@ -441,63 +582,224 @@ def write_html(folder: Path, rows: list[dict], files: list[dict | None]) -> Path
     rows: the rows of `judge_input`, without their 'files'.
     files: per row, the 'files' it carried (figure, thumbnail and report as bytes); None for
         an input that was not judged: its row has no picture and no links.
+    parameters: the options and parameter file values the inputs were judged with, by name;
+        None: none given (every input at its command's defaults).
 
     Returns
     -------
     The path of DIR/index.html. Every file appears, or none does (io/staging.py).
     """
     with StagedOutputs() as outputs:
-        return _write_html(folder, rows, files, outputs)
+        return _write_html(folder, rows, files, parameters or {}, outputs)
 
 
-def _write_html(folder: Path, rows: list[dict], files: list[dict | None],
+# (column id, header): the id names the column in the page's address (#sort=ID)
+_HTML_COLUMNS = (('input', 'input'), ('kind', 'kind'), ('verdict', 'verdict'),
+                 ('scans', 'scans'), ('summary_line', 'summary'),
+                 ('regions', 'misaligned regions'), ('changed_places', 'changed places'),
+                 ('runtime_seconds', 'runtime'), ('map', 'map'), ('files', 'files'))
+_UNSORTED = ('map', 'files')
+
+
+def _cell(column: str, content: str, value=None) -> str:
+    attribute = '' if value is None else f' data-value="{html.escape(str(value))}"'
+    return f'<td data-column="{column}"{attribute}>{content}</td>'
+
+
+def _slug_of_verdict(verdict: str) -> str:
+    return verdict.replace(' ', '-')
+
+
+def _write_html(folder: Path, rows: list[dict], files: list[dict | None], parameters: dict,
                 outputs: StagedOutputs) -> Path:
+    from map_consistency_ros.cli.main import package_version
     maps = folder / 'maps'
     write_csv(outputs.path(folder / 'batch.csv'), rows)
     write_table_json(outputs.path(folder / 'batch.json'), rows)
     body = []
     for index, (row, content) in enumerate(zip(rows, files)):
         slug = _slug(index, row['input'])
-        cells = [html.escape(row['input']), html.escape(row['kind'])]
         if content:
             for suffix, key in (('.png', 'figure'), ('.thumb.png', 'thumbnail'),
                                 ('.json', 'report')):
                 outputs.path(maps / f'{slug}{suffix}').write_bytes(content[key])
             picture = (f'<a href="maps/{slug}.png"><img src="maps/{slug}.thumb.png" '
+                       f'height="{THUMBNAIL_HEIGHT}" '
                        f'alt="map of {html.escape(row["input"])}"></a>')
             links = f'<a href="maps/{slug}.png">figure</a> <a href="maps/{slug}.json">JSON</a>'
         else:
             picture, links = '', ''
         regions = '<br>'.join(html.escape(region['text']) for region in row['regions'])
-        runtime = row['runtime_seconds']
-        cells += [f'<span class="{row["verdict"].replace(" ", "-")}">{row["verdict"]}</span>',
-                  html.escape(row['error'] or row['summary_line']), regions or '-',
-                  '' if row['changed_places'] is None else str(row['changed_places']),
-                  '' if runtime is None else f'{runtime:.1f} s', picture, links]
-        body.append('<tr>' + ''.join(f'<td>{cell}</td>' for cell in cells) + '</tr>')
-    header = ''.join(f'<th>{name}</th>' for name in (
-        'input', 'kind', 'verdict', 'summary', 'misaligned regions', 'changed places',
-        'runtime', 'map', 'files'))
+        runtime, verdict = row['runtime_seconds'], row['verdict']
+        worst = max((region['displacement_m'] or math.inf for region in row['regions']),
+                    default=0.0)
+        cells = [_cell('input', html.escape(row['input']), row['input']),
+                 _cell('kind', html.escape(row['kind']), row['kind']),
+                 _cell('verdict', f'<span class="{_slug_of_verdict(verdict)}">{verdict}</span>',
+                       SHOWN_ORDER.index(row['exit_code'])),
+                 _cell('scans', '' if row['scans'] is None else str(row['scans']),
+                       '' if row['scans'] is None else row['scans']),
+                 _cell('summary_line', html.escape(row['error'] or row['summary_line']),
+                       row['error'] or row['summary_line']),
+                 _cell('regions', regions or '-', worst if math.isfinite(worst) else 1e300),
+                 _cell('changed_places', '' if row['changed_places'] is None else
+                       str(row['changed_places']),
+                       '' if row['changed_places'] is None else row['changed_places']),
+                 _cell('runtime_seconds', '' if runtime is None else f'{runtime:.1f} s',
+                       '' if runtime is None else runtime),
+                 _cell('map', picture), _cell('files', links)]
+        body.append(f'<tr data-index="{index}" data-verdict="{_slug_of_verdict(verdict)}">'
+                    + ''.join(cells) + '</tr>')
+    header = ''.join(
+        f'<th data-column="{column}">{name}</th>' if column in _UNSORTED else
+        f'<th data-column="{column}" class="sortable" title="sort by {name}">{name}</th>'
+        for column, name in _HTML_COLUMNS)
+    counts = verdict_counts(rows)
+    count_items = ''.join(
+        f'<li><b id="count-{_slug_of_verdict(VERDICTS[code])}">{counts[code]}</b> '
+        f'<span class="{_slug_of_verdict(VERDICTS[code])}">{VERDICTS[code]}</span></li>'
+        for code in SHOWN_ORDER)
+    boxes = ''.join(
+        f'<label><input type="checkbox" name="verdict" '
+        f'value="{_slug_of_verdict(VERDICTS[code])}" checked> {VERDICTS[code]}</label> '
+        for code in SHOWN_ORDER)
+    given = ''.join(f'<tr><td>{html.escape(name)}</td><td>{html.escape(_value_text(value))}'
+                    f'</td></tr>' for name, value in sorted(parameters.items()))
+    settings = (f'<table class="parameters">{given}</table>' if given else
+                '<p>none given: every input judged with its command\'s defaults</p>')
+    made = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
     index = folder / 'index.html'
-    outputs.path(index).write_text(_PAGE.format(count=len(rows), header=header,
-                                                body='\n'.join(body)))
+    outputs.path(index).write_text(_PAGE.format(
+        title=html.escape(count_text(rows)), counts=count_items, boxes=boxes, header=header,
+        body='\n'.join(body), parameters=settings, version=html.escape(package_version()),
+        date=made, script=_SCRIPT))
     return index
 
 
-_PAGE = '''<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>map consistency: {count} maps</title>
+def _value_text(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return ' '.join(_value_text(item) for item in value)
+    return str(value)
+
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>map consistency: {title}</title>
 <style>
 body {{ font-family: sans-serif; margin: 1em; }}
+h1 {{ font-size: 140%; }}
 table {{ border-collapse: collapse; }}
-td, th {{ border: 1px solid #ccc; padding: 4px 8px; vertical-align: top; font-size: 90%; }}
-img {{ max-width: 220px; }}
+td, th {{ border: 1px solid #ccc; padding: 2px 6px; vertical-align: top; font-size: 85%; }}
+td[data-column="summary_line"], td[data-column="regions"] {{ max-width: 26em; }}
+td[data-column="map"] {{ padding: 0; }}
+th.sortable {{ cursor: pointer; text-decoration: underline dotted; }}
+th[aria-sort="ascending"]::after {{ content: " \\25B2"; }}
+th[aria-sort="descending"]::after {{ content: " \\25BC"; }}
+img {{ display: block; }}
+ul.counts {{ list-style: none; padding: 0; display: flex; gap: 1.5em; font-size: 110%; }}
 .consistent {{ color: #080; font-weight: bold; }}
 .inconsistent {{ color: #c00; font-weight: bold; }}
+.nothing-to-judge {{ color: #666; font-weight: bold; }}
 .bad-input, .internal-error {{ color: #a60; font-weight: bold; }}
+.controls {{ margin: 0.5em 0; }}
+table.parameters td {{ font-family: monospace; }}
+footer {{ margin-top: 1em; color: #555; font-size: 85%; }}
 </style></head><body>
-<h1>map consistency: {count} maps</h1>
-<p>Table as <a href="batch.csv">CSV</a> and <a href="batch.json">JSON</a>.</p>
-<table><thead><tr>{header}</tr></thead><tbody>
+<h1>map consistency: {title}</h1>
+<ul class="counts">{counts}</ul>
+<p>Table as <a href="batch.csv">CSV</a> and <a href="batch.json">JSON</a>.
+Click a column's header to sort by it (again: the other way).</p>
+<div class="controls"><input type="search" id="filter" placeholder="filter rows by text"
+ size="30"> {boxes}<span id="shown" style="margin-left: 1em"></span></div>
+<table id="maps"><thead><tr>{header}</tr></thead><tbody>
 {body}
-</tbody></table></body></html>
-'''
+</tbody></table>
+<details><summary>parameters</summary>
+<p>The options and parameter file values given; every other parameter at its default
+(docs/node.md).</p>
+{parameters}</details>
+<footer>map_consistency_ros {version}, {date}</footer>
+<script>
+{script}
+</script>
+</body></html>
+"""
+
+# The view lives in the address fragment (sort, filter, hidden verdicts): a link or a
+# reload shows the same rows, and a browser without a mouse (a test) can ask for a view.
+_SCRIPT = """(function () {
+  var table = document.getElementById('maps');
+  var body = table.tBodies[0];
+  var text = document.getElementById('filter');
+  var boxes = Array.prototype.slice.call(document.querySelectorAll('input[name=verdict]'));
+  var state = {sort: '', filter: '', hide: []};
+  function read() {
+    var params = new URLSearchParams(location.hash.slice(1));
+    state.sort = params.get('sort') || '';
+    state.filter = params.get('filter') || '';
+    state.hide = (params.get('hide') || '').split(',').filter(Boolean);
+    text.value = state.filter;
+    boxes.forEach(function (box) { box.checked = state.hide.indexOf(box.value) < 0; });
+  }
+  function write() {
+    var params = new URLSearchParams();
+    if (state.sort) params.set('sort', state.sort);
+    if (state.filter) params.set('filter', state.filter);
+    if (state.hide.length) params.set('hide', state.hide.join(','));
+    history.replaceState(null, '', '#' + params.toString());
+    show();
+  }
+  function value(row, column) {
+    var cell = row.querySelector('td[data-column="' + column + '"]');
+    return cell ? cell.getAttribute('data-value') || '' : '';
+  }
+  function compare(first, second) {
+    var a = parseFloat(first), b = parseFloat(second);
+    if (!isNaN(a) && !isNaN(b)) return a - b;
+    return first.localeCompare(second);
+  }
+  function show() {
+    var rows = Array.prototype.slice.call(body.rows);
+    var descending = state.sort.charAt(0) === '-';
+    var column = descending ? state.sort.slice(1) : state.sort;
+    rows.sort(function (first, second) {
+      var order = 0;
+      if (column) {
+        var a = value(first, column), b = value(second, column);
+        if (a === '' || b === '') order = (a === '') - (b === '');  // empty cells last
+        else order = descending ? compare(b, a) : compare(a, b);
+      }
+      return order || first.getAttribute('data-index') - second.getAttribute('data-index');
+    });
+    var needle = state.filter.toLowerCase(), shown = 0;
+    rows.forEach(function (row) {
+      body.appendChild(row);
+      row.hidden = state.hide.indexOf(row.getAttribute('data-verdict')) >= 0 ||
+        (needle !== '' && row.textContent.toLowerCase().indexOf(needle) < 0);
+      if (!row.hidden) shown += 1;
+    });
+    document.getElementById('shown').textContent = shown + ' of ' + rows.length + ' shown';
+    Array.prototype.forEach.call(table.tHead.rows[0].cells, function (cell) {
+      var own = cell.getAttribute('data-column') === column;
+      if (own) cell.setAttribute('aria-sort', descending ? 'descending' : 'ascending');
+      else cell.removeAttribute('aria-sort');
+    });
+  }
+  Array.prototype.forEach.call(table.querySelectorAll('th.sortable'), function (cell) {
+    cell.addEventListener('click', function () {
+      var column = cell.getAttribute('data-column');
+      state.sort = state.sort === column ? '-' + column : column;
+      write();
+    });
+  });
+  text.addEventListener('input', function () { state.filter = text.value; write(); });
+  boxes.forEach(function (box) {
+    box.addEventListener('change', function () {
+      state.hide = boxes.filter(function (item) { return !item.checked; })
+        .map(function (item) { return item.value; });
+      write();
+    });
+  });
+  window.addEventListener('hashchange', function () { read(); show(); });
+  read();
+  show();
+})();"""

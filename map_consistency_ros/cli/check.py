@@ -95,6 +95,10 @@ def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
     """
     if args.every < 1:
         raise InputError('options', f'--every must be at least 1, got {args.every}')
+    options.check_sensor_options(args)
+    if args.log.is_dir():
+        raise InputError(str(args.log), 'is a folder; check takes one log or .g2o graph '
+                                        '(batch takes folders)')
     if is_graph(args.log):
         # the graph reader brings scipy.sparse (the pose graph): only graphs pay for it
         from map_consistency_ros.io.g2o import read_g2o

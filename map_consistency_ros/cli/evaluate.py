@@ -10,11 +10,11 @@ examples:
   map-consistency evaluate --datasets intel orebro --part-size 100 --doc out/eval.md
   map-consistency evaluate --suite density --density-logs fr079 --densities 1 5 --cases map rot2
 
-`--suite density` runs the density suite instead (evaluation/density.py): each map at several
+`--suite density` runs the density suite instead (docs/density.md): each map at several
 densities and displaced copies of it, every case in its own process at default settings;
 `--build-native` first rebuilds data/density/intel-native.log.gz from the raw Intel bag.
-`--suite real-slam` judges the maps made by MRPT's SLAM in data/real_slam/ (evaluation/
-real_slam.py) and scores the verdicts against their labels (docs/real_slam.md).
+`--suite real-slam` judges the maps made by MRPT's SLAM in data/real_slam/ and scores the
+verdicts against their labels (docs/real_slam.md).
 """
 from __future__ import annotations
 

@@ -13,6 +13,7 @@ import importlib.machinery
 import importlib.util
 import sys
 import traceback
+from pathlib import Path
 from importlib.metadata import PackageNotFoundError, version
 
 from map_consistency_ros.cli.exit_codes import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR
@@ -34,7 +35,14 @@ SUBCOMMANDS = [
 ]
 
 
-def _version() -> str:
+def package_version() -> str:
+    """The installed package's version, for --version and the pages that say what made them.
+
+    Returns
+    -------
+    The version string; 'unknown (not installed)' when run from a source tree that was never
+    installed.
+    """
     try:
         return version('map_consistency_ros')
     except PackageNotFoundError:  # run from a source tree that was never installed
@@ -62,7 +70,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                '--ros-args --params-file config/map_consistency.yaml (topics, services, '
                'parameters: docs/node.md). Every subcommand takes --help.',
     )
-    parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
+    parser.add_argument('--version', action='version', version=f'%(prog)s {package_version()}')
     parser.add_argument('--debug', action='store_true', help=_DEBUG_HELP)
     commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, module_name, help_text in SUBCOMMANDS:
@@ -138,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f'map-consistency {args.command}: {_one_line(error)}', file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as error:
-        print(f'map-consistency {args.command}: {error.filename or ""}: '
+        print(f'map-consistency {args.command}: {_named_path(args, error.filename)}: '
               f'{_one_line(error.strerror or error)}', file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
@@ -160,6 +168,21 @@ def _on_input(args: argparse.Namespace) -> str:
         names.extend(str(item) for item in (value if isinstance(value, list) else [value])
                      if item is not None)
     return f' on {" ".join(names)}' if names else ''
+
+
+def _named_path(args: argparse.Namespace, filename) -> str:
+    """The path of a file error, after the option that named it or whose folder holds it
+    ('--plot out/map.png'): after the verdict, a bare path would not say which output failed."""
+    if filename is None:
+        return ''
+    path = Path(filename)
+    for dest, value in vars(args).items():
+        if dest in args.inputs or not isinstance(value, (str, Path)) or dest == 'command':
+            continue
+        given = Path(value)
+        if path == given or given in path.parents:
+            return f'--{dest.replace("_", "-")} {filename}'
+    return str(filename)
 
 
 def _one_line(error: BaseException) -> str:

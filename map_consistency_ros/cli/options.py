@@ -15,6 +15,7 @@ from map_consistency_ros.core.configuration import Configuration
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.parameters import ParameterSpec, specs
 from map_consistency_ros.core.verdict import ExplanationSettings
+from map_consistency_ros.io.errors import InputError
 
 
 def option_name(name: str) -> str:
@@ -121,6 +122,31 @@ def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
     add_fov_argument(group)
     group.add_argument('--range-min', type=float, default=0.0, metavar='METRES',
                        help='readings at or below this are invalid (default %(default)s)')
+
+
+def check_sensor_options(args: argparse.Namespace) -> None:
+    """Refuse sensor options no scanner has, naming the option (not the class they end in).
+
+    Parameters
+    ----------
+    args: parsed options of `add_sensor_arguments` (max_range None when not given).
+
+    Returns
+    -------
+    None. InputError ('options: --max-range must be positive, got -3') for a --max-range that
+    is not a positive number, a --range-min that is negative or not below --max-range, or a
+    --fov outside (0, 360] degrees.
+    """
+    max_range, range_min, fov = args.max_range, args.range_min, getattr(args, 'fov', None)
+    if max_range is not None and not (math.isfinite(max_range) and max_range > 0):
+        raise InputError('options', f'--max-range must be positive, got {max_range:g}')
+    if not (math.isfinite(range_min) and range_min >= 0):
+        raise InputError('options', f'--range-min must be zero or positive, got {range_min:g}')
+    if max_range is not None and range_min >= max_range:
+        raise InputError('options', f'--range-min ({range_min:g}) must be below --max-range '
+                                    f'({max_range:g})')
+    if fov is not None and not (math.isfinite(fov) and 0 < fov <= 360):
+        raise InputError('options', f'--fov must be in (0, 360] degrees, got {fov:g}')
 
 
 def add_fov_argument(parser) -> None:

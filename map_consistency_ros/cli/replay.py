@@ -2,7 +2,7 @@
 
 Reads ROS 2 bags (mcap, sqlite3: the bag folder) and ROS 1 bags (.bag) without a ROS install.
 The scans (sensor_msgs/LaserScan) and poses are fed, in log order, to the same live pipeline
-the node runs (core/live/pipeline.py), so the verdict equals what the node would publish.
+the node runs, so the verdict equals what the node would publish.
 
 Pose sources (--pose-topic; default /trajectory, else the bag's only pose topic):
   nav_msgs/Path              the SLAM back-end's keyframe trajectory, as the node takes it:

@@ -11,7 +11,8 @@ input forms:
   GRAPH.g2o --scans LOG     scans from a CARMEN log instead: laser record k is the scan of
                             the k-th vertex in id order
   --build LOG RELATIONS BAG build the graph from a corrected CARMEN log, a relations file and
-                            the raw bag (see io/datasets.py); --save-graph keeps it as g2o
+                            the raw bag (odometry edges from the bag's /odom, loop closures
+                            from the relations); --save-graph keeps it as g2o
 
 examples:
   map-consistency tune intel_graph.g2o --report out/tune.json --profile-plot out/profile.png
@@ -21,8 +22,11 @@ examples:
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
@@ -30,7 +34,7 @@ from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult
                                               tune_dcs)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.geometry import SensorModel
-from map_consistency_ros.core.verdict import Assessment, explain
+from map_consistency_ros.core.verdict import INCONSISTENT, Assessment, explain
 from map_consistency_ros.io import carmen, datasets
 from map_consistency_ros.io.errors import InputError
 from map_consistency_ros.io.g2o import G2oGraph, read_g2o, write_g2o
@@ -127,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise InputError('options', str(error)) from None
     settings, parameters, explanation = config.tuning, config.consistency, config.explanation
+    options.check_sensor_options(args)
     content, log = load_graph(args)
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)
@@ -154,31 +159,85 @@ def run(args: argparse.Namespace) -> int:
         reference_scans=profile.scans_at(content.graph.odometry_chain())), explanation)
     tuned = explain(profile.scans_at(result.poses), result.consistency, explanation)
     _print_summary(source, result, tuned, baseline.value, baseline_test, elapsed)
+    warnings = search_warnings(result, settings)
+    for warning in warnings:
+        print(f'map-consistency tune: {source}: warning: {warning}', file=sys.stderr)
+    written = []
     if args.report:
         report.write_json(args.report, _report(source, result, tuned, model, baseline,
-                                               baseline_test, settings, elapsed))
+                                               baseline_test, settings, elapsed, warnings))
+        written.append(('report', args.report))
     if args.profile_plot:
         _save_profile(args.profile_plot, result, settings, source)
+        written.append(('profile plot', args.profile_plot))
     if args.maps_plot:
         _save_maps(args.maps_plot, profile, baseline.optimization.poses, baseline_test, result,
                    tuned)
+        written.append(('maps plot', args.maps_plot))
+    if args.build is not None and args.save_graph:
+        written.append(('graph', args.save_graph))
+    for name, path in written:
+        print(f'  {name:<22}{path}')
     return exit_codes.of_outcome(tuned.outcome)
+
+
+def search_warnings(result: TuningResult, settings: TuningSettings) -> list[str]:
+    """What the user should know before trusting Phi*: a minimum at an end of the search
+    range, or a profile so flat that Phi* is arbitrary.
+
+    Parameters
+    ----------
+    result: the search's result (its at_bound and flat findings).
+    settings: the search's settings (its range and flat tolerance).
+
+    Returns
+    -------
+    One sentence per finding, without the source; none when Phi* is a minimum inside the
+    range.
+    """
+    warnings = []
+    if result.flat:
+        finite = result.profile_value[np.isfinite(result.profile_value)]
+        warnings.append(
+            f'M(Phi) is flat: {finite.min():.6g} m to {finite.max():.6g} m over Phi '
+            f'{settings.phi_min:g} to {settings.phi_max:g} (within --flat-tolerance '
+            f'{settings.flat_tolerance:g} of the smallest): no Phi makes the map measurably '
+            'more consistent, so Phi* is arbitrary; DCS has little to downweight in this graph')
+    if result.at_bound == 'phi_min':
+        warnings.append(
+            f'Phi* = {result.phi:.6g} lies at the lower end of the search (--phi-min '
+            f'{settings.phi_min:g}): a smaller Phi may give a smaller M; search lower with '
+            '--phi-min')
+    elif result.at_bound == 'phi_max':
+        warnings.append(
+            f'Phi* = {result.phi:.6g} lies at the upper end of the search (--phi-max '
+            f'{settings.phi_max:g}): a larger Phi may give a smaller M; search higher with '
+            '--phi-max')
+    return warnings
 
 
 def _print_summary(source: str, result: TuningResult, tuned: Assessment, baseline_value: float,
                    baseline_test: Assessment, elapsed: float) -> None:
+    # M is a mean over overlapping scan pairs of the summed distances (m) by which end points
+    # lie inside the other scan's free space (eq. 11)
     print(f'{source}: Phi* = {result.phi:.6g}, map at Phi* {tuned.summary_line()}')
-    print(f'  M(Phi*)               {result.average_inconsistency:.6g}')
-    print(f'  M(1)                  {baseline_value:.6g} '
+    print(f'  M(Phi*)               {result.average_inconsistency:.6g} m '
+          '(average inconsistency of the overlapping scan pairs)')
+    print(f'  M(1)                  {baseline_value:.6g} m '
           f'({baseline_test.outcome} at Phi = 1)')
     print(f'  inconsistent scans    {int(result.consistency.inconsistent.sum())} of '
           f'{result.consistency.scan_count}')
     print(f'  evaluations           {len(result.profile_phi)}')
     print(f'  tuning time           {elapsed:.1f} s')
+    if tuned.outcome == INCONSISTENT:
+        print('  still inconsistent at Phi*, the most consistent map DCS finds: no Phi '
+              'downweights the error away; look for a wrong loop closure the graph trusts '
+              '(high information) or a front-end fault (scan matching, odometry)')
 
 
 def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorModel, baseline,
-            baseline_test: Assessment, settings: TuningSettings, elapsed: float) -> dict:
+            baseline_test: Assessment, settings: TuningSettings, elapsed: float,
+            warnings: list[str]) -> dict:
     content = report.assessment_report(tuned)
     content.update({
         'source': source,
@@ -192,6 +251,9 @@ def _report(source: str, result: TuningResult, tuned: Assessment, model: SensorM
         'sensor_model': vars(model),
         'poses': result.poses,
         'runtime_seconds': elapsed,
+        'at_bound': result.at_bound,
+        'flat_profile': result.flat,
+        'warnings': warnings,
     })
     return content
 

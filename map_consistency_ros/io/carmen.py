@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from map_consistency_ros.core.geometry import SensorModel
-from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.errors import InputError, not_a_file
 from map_consistency_ros.io.limits import DISTANCE, HEADING, SCAN_ANGLE, STAMP, Limit, implausible
 
 DEFAULT_FOV = math.pi
@@ -303,7 +303,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
     path = Path(path)
     source = str(path)
     if not path.is_file():
-        raise InputError(source, 'no such file')
+        raise not_a_file(path)
     ranges, laser_poses, robot_poses, timestamps, lines = [], [], [], [], []
     stated: LaserAngles | None = None
     parameters: dict[str, str] = {}

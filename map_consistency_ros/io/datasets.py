@@ -27,7 +27,7 @@ from map_consistency_ros.core.backend import PoseGraph
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, check_plausible,
                                            read_carmen_log, sensor_model)
-from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.errors import InputError, not_a_file
 from map_consistency_ros.io.g2o import G2oGraph
 from map_consistency_ros.io.limits import DISTANCE, HEADING, STAMP
 from map_consistency_ros.io.messages import stamp_to_seconds
@@ -194,7 +194,7 @@ def read_relations(path: str | Path) -> np.ndarray:
     path = Path(path)
     source = str(path)
     if not path.is_file():
-        raise InputError(source, 'no such file')
+        raise not_a_file(path)
     rows, lines = [], []
     with open(path, encoding='utf-8', errors='replace') as stream:
         for line_number, text in enumerate(stream, start=1):
@@ -238,7 +238,7 @@ def read_raw_bag(path: str | Path) -> RawBag:
     path = Path(path)
     source = str(path)
     if not path.exists():
-        raise InputError(source, 'no such file')
+        raise not_a_file(path)
     scans, odometry, offset, angles = [], [], np.zeros(3), None
     try:
         with AnyReader([path]) as reader:

@@ -23,7 +23,7 @@ from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import (READ_ERRORS, CarmenLog, LaserAngles,
                                            check_laser_records, check_poses, open_text,
                                            parse_floats, parse_robotlaser)
-from map_consistency_ros.io.errors import InputError
+from map_consistency_ros.io.errors import InputError, not_a_file
 from map_consistency_ros.io.staging import staged
 
 _LASER_OFFSET_TOLERANCE = 1e-6
@@ -35,13 +35,15 @@ class G2oGraph:
 
     `laser` holds the scans (ranges, laser and robot poses as written, timestamps, line
     numbers, beam geometry) and `laser_vertices (L,)` the vertex index of each; both are None
-    when the file carries no laser records.
+    when the file carries no laser records. `source` names the graph in errors (the file read;
+    'graph' for one built in memory).
     """
 
     graph: PoseGraph
     vertex_ids: np.ndarray
     laser: CarmenLog | None = None
     laser_vertices: np.ndarray | None = None
+    source: str = 'graph'
 
     @property
     def laser_offset(self) -> np.ndarray:
@@ -64,7 +66,7 @@ class G2oGraph:
         graph carries no laser records or some vertex has no scan or more than one.
         """
         if self.laser is None:
-            raise InputError('graph', 'the graph carries no laser data (ROBOTLASER1 lines)')
+            raise InputError(self.source, 'the graph carries no laser data (ROBOTLASER1 lines)')
         count = self.graph.vertex_count
         seen = np.bincount(self.laser_vertices, minlength=count)
         if np.any(seen != 1):
@@ -96,7 +98,7 @@ def read_g2o(path: str | Path) -> G2oGraph:
     path = Path(path)
     source = str(path)
     if not path.is_file():
-        raise InputError(source, 'no such file')
+        raise not_a_file(path)
     reader = _Reader(source)
     try:
         with open_text(path) as stream:
@@ -219,7 +221,8 @@ class _Reader:
         graph = PoseGraph(poses=poses, edge_from=edge_from, edge_to=edge_to,
                           measurements=values[:, :3], information=information, fixed=fixed)
         laser, laser_vertices = self._laser(index)
-        return G2oGraph(graph=graph, vertex_ids=ids, laser=laser, laser_vertices=laser_vertices)
+        return G2oGraph(graph=graph, vertex_ids=ids, laser=laser, laser_vertices=laser_vertices,
+                        source=self.source)
 
     def _laser(self, index: dict[int, int]) -> tuple[CarmenLog | None, np.ndarray | None]:
         if not self.scans:

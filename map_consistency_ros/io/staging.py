@@ -78,8 +78,11 @@ class StagedOutputs:
                 if written.exists():
                     os.replace(written, final)
                 shutil.rmtree(staging, ignore_errors=True)
-        except OSError:
+        except OSError as error:
+            final = self._final_of(error.filename)
             self.discard()
+            if final is not None:
+                raise OSError(error.errno, error.strerror, str(final)) from None
             raise
         self._staged.clear()
         self._created.clear()
@@ -107,8 +110,21 @@ class StagedOutputs:
     def __exit__(self, exc_type, exc, traceback) -> None:
         if exc_type is None:
             self.commit()
-        else:
-            self.discard()
+            return
+        final = self._final_of(exc.filename) if isinstance(exc, OSError) else None
+        self.discard()
+        if final is not None:  # a writer's error names the output, not its hidden stage
+            raise OSError(exc.errno, exc.strerror, str(final)) from None
+
+    def _final_of(self, filename) -> Path | None:
+        """The final path of the output whose staging folder holds `filename` (None if none)."""
+        if not isinstance(filename, (str, os.PathLike)):
+            return None
+        written = Path(filename)
+        for staging, final in self._staged:
+            if written == staging or staging in written.parents:
+                return final
+        return None
 
 
 @contextmanager

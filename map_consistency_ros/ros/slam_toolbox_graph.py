@@ -54,11 +54,16 @@ def require_interfaces() -> None:
         for msgtype in SLAM_TOOLBOX_GRAPH_TYPES:
             message_class(msgtype)
     except (ImportError, AttributeError) as error:
+        # Pull request 818 went to slam_toolbox's ros2 branch only: no Jazzy release (2.8.x)
+        # lists it, so on Jazzy it most likely means building slam_toolbox from that branch.
         raise MissingInterfaces(
             'pose_source slam_toolbox_graph needs the ROS 2 package slam_toolbox with its '
             'pose-graph messages (slam_toolbox/msg/PoseGraph, NewNodeEvent, LoopClosureEvent: '
-            f'releases with pull request 818), which cannot be imported here ({error}); use '
-            'pose_source slam_toolbox for releases without them') from None
+            f'pull request 818), which cannot be imported here ({error}); '
+            '`ros2 interface show slam_toolbox/msg/PoseGraph` tells whether the installed '
+            "slam_toolbox has them: Jazzy's releases (2.8.x) most likely do not (build "
+            "slam_toolbox from its ros2 branch); without them use pose_source slam_toolbox "
+            '(its pose and graph markers)') from None
 
 
 def _subscribe(node, msgtype: str, callback, qos: QoSProfile, group, raw: bool = False) -> None:

@@ -2,6 +2,10 @@
 code, the HTML page, and the same table from a Dask cluster as from the local pool."""
 import csv
 import json
+import re
+import shutil
+import subprocess
+from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +69,7 @@ def test_each_input_is_judged_as_check_and_replay_judge_it(room_log, displaced_r
             assert f'maps/{slug}{suffix}' in index
         report = json.loads((page / 'maps' / f'{slug}.json').read_text())
         assert report['verdict'] == row['verdict'] and f'maps/{slug}.json' in index
-    assert index.count('<tr>') == len(rows) + 1  # and the header
+    assert index.count('<tr data-index=') == len(rows)
     assert json.loads((page / 'batch.json').read_text())['maps'] == rows
 
 
@@ -195,3 +199,137 @@ def test_a_graph_with_scans_is_judged_at_its_vertex_poses_as_check_judges_it(roo
     assert main(['check', str(graph), '--quiet']) == 0
     assert _first_line(capsys) == f'{graph}: {rows[0]["summary_line"]}'
     assert rows[0]['summary_line'] == rows[1]['summary_line']
+
+
+def _chromium() -> str:
+    """The headless browser the page test drives: Debian's chromium (`bootstrap.py test`
+    installs it where apt-get can) or Ubuntu's chromium-browser."""
+    for name in ('chromium', 'chromium-browser'):
+        found = shutil.which(name)
+        if found:
+            return found
+    raise FileNotFoundError('no chromium or chromium-browser on PATH: the HTML page test needs '
+                            'a headless Chromium (apt-get install -y chromium)')
+
+
+def _rendered(url: str) -> str:
+    """The DOM of `url` after its scripts ran, as headless Chromium serializes it."""
+    done = subprocess.run([_chromium(), '--headless', '--no-sandbox', '--disable-gpu',
+                           '--virtual-time-budget=2000', '--dump-dom', url],
+                          capture_output=True, text=True, timeout=120, check=True)
+    return done.stdout
+
+
+class _Rows(HTMLParser):
+    """The table's rows as the browser left them: (input, verdict, runtime, hidden) in order."""
+
+    def __init__(self):
+        super().__init__()
+        self.rows, self.counts, self.cell, self.title = [], {}, None, ''
+        self._in_title = False
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == 'tr' and 'data-index' in attrs:
+            self.rows.append({'verdict': attrs['data-verdict'], 'hidden': 'hidden' in attrs})
+        elif tag == 'td' and self.rows and attrs.get('data-column') in ('input',
+                                                                        'runtime_seconds'):
+            self.rows[-1][attrs['data-column']] = attrs.get('data-value', '')
+        elif tag == 'b' and attrs.get('id', '').startswith('count-'):
+            self.cell = attrs['id'][len('count-'):]
+        elif tag == 'h1':
+            self._in_title = True
+
+    def handle_endtag(self, tag):
+        if tag == 'h1':
+            self._in_title = False
+
+    def handle_data(self, data):
+        if self.cell is not None:
+            self.counts[self.cell] = int(data)
+            self.cell = None
+        elif self._in_title:
+            self.title += data
+
+
+def _view(index: Path, fragment: str = '') -> _Rows:
+    parsed = _Rows()
+    parsed.feed(_rendered(index.resolve().as_uri() + fragment))
+    return parsed
+
+
+def test_the_html_page_counts_sorts_and_filters_in_a_browser(room_log, displaced_room_log,
+                                                             tmp_path, capsys):
+    consistent, _, _ = room_log()
+    displaced = displaced_room_log()
+    corrupt = tmp_path / 'corrupt.log'
+    corrupt.write_text('FLASER 3 1.0 2.0\n')
+    page = tmp_path / 'page'
+    code = main(['batch', str(consistent), str(displaced), str(corrupt),
+                 str(tmp_path / 'missing.log'), '--workers', '1', '--quiet', *EVERY_SCAN,
+                 '--alpha', '0.05', '--html', str(page)])
+    assert code == batch.EXIT_BAD_INPUT
+    printed = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r'4 inputs in [0-9.]+ s: 2 maps judged \(1 consistent, 1 inconsistent\), '
+                        r'2 bad inputs', printed[-2])
+    index = page / 'index.html'
+    shown = _view(index)
+    assert shown.title == 'map consistency: 4 inputs: 2 maps judged (1 consistent, ' \
+                          '1 inconsistent), 2 bad inputs'
+    assert shown.counts == {'consistent': 1, 'inconsistent': 1, 'nothing-to-judge': 0,
+                            'bad-input': 2, 'internal-error': 0}
+    inputs = [str(consistent), str(displaced), str(corrupt), str(tmp_path / 'missing.log')]
+    assert [row['input'] for row in shown.rows] == inputs
+    assert not any(row['hidden'] for row in shown.rows)
+    # sorted by runtime, shortest first: the inputs read in no time before the maps judged
+    by_runtime = _view(index, '#sort=runtime_seconds').rows
+    runtimes = [float(row['runtime_seconds']) for row in by_runtime]
+    assert runtimes == sorted(runtimes) and by_runtime[-1] != shown.rows[-1]
+    assert {row['input'] for row in by_runtime[2:]} == set(inputs[:2])
+    by_input = _view(index, '#sort=-input').rows
+    assert [row['input'] for row in by_input] == sorted(inputs, reverse=True)
+    # filtered: a verdict's box unchecked, or a text the row does not hold
+    hidden = _view(index, '#hide=bad-input').rows
+    assert [row['hidden'] for row in hidden] == [False, False, True, True]
+    texts = _view(index, '#filter=DISPLACED').rows
+    assert [row['hidden'] for row in texts] == [True, False, True, True]
+    text = index.read_text()
+    given = re.search(r'<table class="parameters">(.*?)</table>', text).group(1)
+    assert re.findall(r'<td>(\w+)</td><td>([^<]*)</td>', given) == [('alpha', '0.05'),
+                                                                  ('viewpoint_spacing', '0.0')]
+    assert re.search(r'map_consistency_ros \S+, \d{4}-\d\d-\d\d \d\d:\d\d UTC', text)
+    assert 'http' not in text.replace('http-equiv', '')  # nothing fetched from a network
+    # thumbnails of several rows fit on a screen
+    from PIL import Image
+    for thumbnail in sorted((page / 'maps').glob('*.thumb.png')):
+        with Image.open(thumbnail) as picture:
+            assert picture.height == batch.THUMBNAIL_HEIGHT
+
+
+def test_a_thumbnail_shows_the_first_misaligned_region_or_the_whole_map(displaced_room_log,
+                                                                        room_log):
+    args = batch._namespace('check', str(displaced_room_log()), dict(viewpoint_spacing=0.0))
+    judgement = check.judge(args)
+    scans, assessment = judgement.scans, judgement.assessment
+    (region,) = assessment.misalignments
+    box = batch._region_box(scans, assessment)
+    moved = scans.endpoints[region.scans][scans.valid[region.scans]]
+    assert box[0] < moved[:, 0].min() and box[2] > moved[:, 0].max()
+    assert box[2] - box[0] <= np.ptp(moved[:, 0]) + 2 * max(2.0, 0.1 * np.ptp(moved, axis=0).max())
+    whole = batch._namespace('check', str(room_log()[0]), dict(viewpoint_spacing=0.0))
+    assert batch._region_box(check.judge(whole).scans, check.judge(whole).assessment) is None
+
+
+def test_one_input_is_counted_in_the_singular_and_runtimes_are_kept_to_the_millisecond(
+        room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    table = tmp_path / 'table.csv'
+    assert main(['batch', str(path), '--workers', '1', '--quiet', '--csv', str(table)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r'1 input in [0-9.]+ s: 1 map judged \(1 consistent\)', printed[-2])
+    with open(table, newline='') as stream:
+        (row,) = csv.DictReader(stream)
+    assert re.fullmatch(r'\d+(\.\d{1,3})?', row['runtime_seconds'])
+    assert main(['batch', str(tmp_path / 'absent.log'), '--quiet']) == 2
+    assert re.fullmatch(r'1 input in [0-9.]+ s: 0 maps judged, 1 bad input',
+                        capsys.readouterr().out.splitlines()[-1])

@@ -160,3 +160,35 @@ def test_the_same_real_map_at_two_densities_gets_the_same_verdict(strict_json, s
     # 4,791 records become about as many viewpoints as the 959 of every 5th scan
     assert 0.8 < dense['summary']['scans'] / sparse['summary']['scans'] < 1.5
     assert dense['misalignments'] == sparse['misalignments'] == []
+
+
+def _one_line(capsys) -> str:
+    (line,) = capsys.readouterr().err.splitlines()
+    return line
+
+
+def test_bad_inputs_and_sensor_options_are_named_in_one_line(room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    assert main(['check', str(tmp_path), '--quiet']) == 2
+    assert _one_line(capsys) == (f'map-consistency check: {tmp_path}: is a folder; check takes '
+                                 'one log or .g2o graph (batch takes folders)')
+    for option, value, message in (('--max-range', '-3', '--max-range must be positive, got -3'),
+                                   ('--range-min', '-1', '--range-min must be zero or positive, '
+                                                         'got -1'),
+                                   ('--fov', '400', '--fov must be in (0, 360] degrees, got 400')):
+        assert main(['check', str(path), '--quiet', option, value]) == 2
+        assert _one_line(capsys) == f'map-consistency check: options: {message}'
+    graph = tmp_path / 'bare.g2o'
+    graph.write_text('VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n'
+                     'EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n')
+    assert main(['check', str(graph), '--quiet']) == 2
+    assert _one_line(capsys) == (f'map-consistency check: {graph}: the graph carries no laser '
+                                 'data (ROBOTLASER1 lines)')
+
+
+def test_an_output_that_cannot_be_written_is_named_by_its_option(room_log, tmp_path, capsys):
+    path, _, _ = room_log()
+    (tmp_path / 'afile').write_text('')
+    figure = tmp_path / 'afile' / 'map.png'
+    assert main(['check', str(path), '--quiet', '--plot', str(figure)]) == 2
+    assert _one_line(capsys) == f'map-consistency check: --plot {figure}: Not a directory'

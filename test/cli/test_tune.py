@@ -1,5 +1,7 @@
 """`map-consistency tune`: the three input forms, outputs, exit codes and bad input."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -93,3 +95,60 @@ def test_graph_without_scans_or_with_a_wrong_log_exits_2(built, tmp_path, capsys
     broken.write_text('VERTEX_SE2 0 0 0\n')
     assert main(['tune', str(broken), *FAST]) == 2
     assert f'{broken}:1: VERTEX_SE2 needs 4 fields' in capsys.readouterr().err
+
+
+def test_the_summary_gives_m_in_metres_the_paths_written_and_what_a_failing_map_means(
+        strict_json, built, tmp_path, capsys):
+    _, out = built
+    written = [tmp_path / 'tune.json', tmp_path / 'profile.png']
+    code = main(['tune', str(out / 'graph.g2o'), '--report', str(written[0]),
+                 '--profile-plot', str(written[1]), *FAST])
+    printed = capsys.readouterr().out
+    report = strict_json(written[0].read_text())
+    assert f'M(Phi*)               {report["average_inconsistency"]:.6g} m ' in printed
+    assert f'  report                {written[0]}' in printed
+    assert f'  profile plot          {written[1]}' in printed
+    assert ('look for a wrong loop closure' in printed) == (code == 1)
+
+
+def test_a_flat_profile_and_a_minimum_at_the_end_of_the_range_are_warned_about(
+        strict_json, built, tmp_path, capsys):
+    _, out = built
+    # within a tolerance of 1 every profile is flat: Phi* is then arbitrary
+    main(['tune', str(out / 'graph.g2o'), '--flat-tolerance', '1',
+          '--report', str(tmp_path / 'flat.json'), *FAST])
+    warnings = capsys.readouterr().err.splitlines()
+    assert len(warnings) == 1 and 'warning: M(Phi) is flat' in warnings[0]
+    assert str(out / 'graph.g2o') in warnings[0]
+    report = strict_json((tmp_path / 'flat.json').read_text())
+    assert report['flat_profile'] is True and report['warnings'] == [
+        warnings[0].split('warning: ', 1)[1]]
+    # this graph's M falls up to Phi = 6: a range ending at 2 holds its minimum at the end
+    main(['tune', str(out / 'graph.g2o'), '--phi-max', '2', *FAST])
+    warnings = capsys.readouterr().err.splitlines()
+    assert len(warnings) == 1 and 'lies at the upper end of the search (--phi-max 2)' \
+        in warnings[0]
+
+
+@pytest.mark.parametrize('keep', ['none', 'odometry'])
+def test_a_graph_without_edges_or_loop_closures_is_refused_in_one_line(built, tmp_path, capsys,
+                                                                        keep):
+    """Needs the graph policy of core/backend (tuning_problem) in tune's input reading."""
+    _, out = built
+    lines = []
+    for line in (out / 'graph.g2o').read_text().splitlines():
+        fields = line.split()
+        if fields and fields[0] == 'EDGE_SE2' and (
+                keep == 'none' or abs(int(fields[1]) - int(fields[2])) != 1):
+            continue
+        lines.append(line)
+    graph = tmp_path / f'{keep}.g2o'
+    graph.write_text('\n'.join(lines) + '\n')
+    assert main(['tune', str(graph), *FAST]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and str(graph) in error
+    assert 'singular' not in error
+    if keep == 'none':
+        assert re.search(r'\b(no|0) (edges?|constraints?)\b', error)
+    else:
+        assert 'no loop closure' in error

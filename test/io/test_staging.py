@@ -66,3 +66,15 @@ def test_an_output_whose_folder_cannot_be_made_is_named(tmp_path):
         with staged(tmp_path / 'afile' / 'bag'):
             pass
     assert caught.value.filename == str(tmp_path / 'afile' / 'bag')
+
+
+def test_a_writer_error_names_the_output_not_its_hidden_stage(tmp_path):
+    final = tmp_path / 'out' / 'map.png'
+    with pytest.raises(OSError) as caught:
+        with staged(final) as target:
+            raise OSError(28, 'No space left on device', str(target))
+    assert caught.value.filename == str(final) and caught.value.errno == 28
+    assert _everything(tmp_path) == []
+    with pytest.raises(ValueError):  # other errors pass through as they are
+        with staged(final):
+            raise ValueError('not a file error')

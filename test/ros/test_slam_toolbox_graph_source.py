@@ -59,6 +59,10 @@ def test_without_slam_toolbox_interfaces_the_node_ends_with_one_line(tmp_path):
     assert len(lines) == 1, err
     assert lines[0].startswith('map_consistency: pose_source slam_toolbox_graph needs the ROS 2 '
                                'package slam_toolbox')
+    # how to tell, and what to do instead
+    assert '`ros2 interface show slam_toolbox/msg/PoseGraph`' in lines[0]
+    assert 'ros2 branch' in lines[0] and lines[0].endswith('use pose_source slam_toolbox '
+                                                           '(its pose and graph markers)')
     assert 'Traceback' not in err and out == ''
 
 

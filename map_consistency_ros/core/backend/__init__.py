@@ -13,7 +13,8 @@ from map_consistency_ros.core.backend._posegraph import (CONSTRAINT_FIELDS, CONS
                                                          split_constraint_rows, tuning_problem)
 from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyProfile,
                                                       MeasuredPairs, TuningResult,
-                                                      TuningSettings, measure_moved, tune_dcs)
+                                                      TuningSettings, measure_moved, profile_shape,
+                                                      tune_dcs)
 
 __all__ = [
     'PoseGraph', 'information_upper', 'information_from_upper', 'tuning_problem',
@@ -22,5 +23,6 @@ __all__ = [
     'OptimizationResult', 'SparseSystem', 'optimize', 'dcs_scales', 'robust_cost',
     'edge_residuals',
     'TuningSettings', 'Evaluation', 'TuningResult', 'InconsistencyProfile', 'tune_dcs',
+    'profile_shape',
     'MeasuredPairs', 'measure_moved',
 ]

@@ -7,7 +7,10 @@ over sqrt(Phi) (Phi is a squared quantity): a grid, then golden-section refineme
 best grid point until the Phi bracket is narrower than the tolerance or the profile is flat
 there (its two inner values within `flat_tolerance` of each other). The statistical test then
 says whether even the map at Phi* is consistent, its local scales fitted on the
-incremental solution (the odometry chain).
+incremental solution (the odometry chain). The result says when the search cannot be trusted
+to have found a minimum: the grid's smallest M lies at an end of the range (the minimum may lie
+beyond it), or the whole profile is flat (every Phi gives the same map within the measure's
+noise, so Phi* is arbitrary).
 """
 from __future__ import annotations
 
@@ -43,7 +46,7 @@ class TuningSettings(Settings):
     at once on the grid (0: one per CPU, at most 4); each holds a few arrays of the graph's
     size, so memory is rarely the limit. `flat_tolerance`: the golden section stops once its two
     inner M values differ by less than this fraction of them (the profile is flat within its
-    noise there; 0 refines to `tolerance`). `reuse_tolerance` (metres): a pair's M_ij is reused
+    noise there; 0 refines to `tolerance`), and a whole profile within it is reported flat. `reuse_tolerance` (metres): a pair's M_ij is reused
     from the map it was last measured on while its scans' relative pose moves every end point by
     at most this much, which bounds the change of M_ij by the pair's valid end points times it
     (0: only unmoved pairs are reused). Each solve stops, as GTSAM's, once a step lowers the cost
@@ -105,8 +108,12 @@ class Evaluation:
 
 @dataclass(frozen=True)
 class TuningResult:
-    """Phi*, M(Phi*), the optimized poses (N, 3), every evaluated (Phi, M(Phi)) sorted by Phi,
-    and the statistical test on the map at Phi*."""
+    """Phi*, M(Phi*) (m), the optimized poses (N, 3), every evaluated (Phi, M(Phi)) sorted by
+    Phi, and the statistical test on the map at Phi*.
+
+    `at_bound` is 'phi_min' or 'phi_max' when the grid's smallest M lies at that end of the
+    search range (None otherwise); `flat` is True when every finite M of the profile lies
+    within `flat_tolerance` of the smallest (`profile_shape`)."""
 
     phi: float
     average_inconsistency: float
@@ -115,6 +122,8 @@ class TuningResult:
     profile_value: np.ndarray
     consistency: ConsistencyResult
     consistent: bool
+    at_bound: str | None = None
+    flat: bool = False
 
 
 class InconsistencyProfile:
@@ -348,9 +357,47 @@ def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
     if progress is not None:
         progress(total, total)
     phis, values = profile.profile()
+    at_bound, flat = profile_shape(phis, values, settings)
     return TuningResult(phi=best.phi, average_inconsistency=best.value,
                         poses=best.optimization.poses, profile_phi=phis, profile_value=values,
-                        consistency=consistency, consistent=consistency.consistent)
+                        consistency=consistency, consistent=consistency.consistent,
+                        at_bound=at_bound, flat=flat)
+
+
+def profile_shape(phis: np.ndarray, values: np.ndarray, settings: TuningSettings
+                  ) -> tuple[str | None, bool]:
+    """Whether a search's minimum can be trusted: where the grid puts it, and whether the
+    profile is flat.
+
+    The profile is flat when all its finite values lie within `flat_tolerance` of the
+    smallest (`_flat`, the golden section's own stopping rule): the differences are then of the
+    order of the measure's own noise (pairs entering and leaving the overlap as poses move by
+    millimetres), so no Phi makes the map measurably more consistent than another.
+
+    Parameters
+    ----------
+    phis: (M,) the evaluated Phi values (the grid's among them).
+    values: (M,) M(Phi) at each (inf where the solve failed).
+    settings: the search's settings (its grid, its flat tolerance).
+
+    Returns
+    -------
+    (at_bound, flat): at_bound 'phi_min' or 'phi_max' when the smallest finite M of the grid
+    lies at that end of the grid (the minimum may lie beyond the range), None otherwise or
+    when the profile is flat (then no point is a minimum); flat as above (False with fewer
+    than two finite values).
+    """
+    phis, values = np.asarray(phis, dtype=np.float64), np.asarray(values, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    flat = finite.size >= 2 and _flat(finite, settings.flat_tolerance)
+    grid = settings.grid()
+    on_grid = np.array([values[np.argmin(np.abs(phis - phi))] if phis.size else math.inf
+                        for phi in grid])
+    if flat or not np.isfinite(on_grid).any():
+        return None, flat
+    best = int(np.argmin(on_grid))
+    at_bound = 'phi_min' if best == 0 else 'phi_max' if best == len(grid) - 1 else None
+    return at_bound, flat
 
 
 def _bracket(grid: np.ndarray, index: int, settings: TuningSettings) -> tuple[float, float]:
@@ -392,7 +439,7 @@ def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
     # The first two are independent: their solves run side by side.
     value_low, value_high = values(inner_low, inner_high)
     while (_to_phi(high, settings) - _to_phi(low, settings) >= settings.tolerance
-           and not _flat(value_low, value_high, settings.flat_tolerance)):
+           and not _flat(np.array([value_low, value_high]), settings.flat_tolerance)):
         if value_low <= value_high:
             high, inner_high, value_high = inner_high, inner_low, value_low
             inner_low = high - _GOLDEN * (high - low)
@@ -403,7 +450,8 @@ def _golden_section(profile: InconsistencyProfile, grid: np.ndarray, index: int,
             value_high, = values(inner_high)
 
 
-def _flat(first: float, second: float, tolerance: float) -> bool:
-    """Whether two M values agree within `tolerance` of the smaller (both finite)."""
-    return bool(np.isfinite(first) and np.isfinite(second)
-                and abs(first - second) <= tolerance * min(first, second))
+def _flat(values: np.ndarray, tolerance: float) -> bool:
+    """Whether M values agree within `tolerance` of the smallest (all finite): the one
+    definition of a flat profile, for the golden section's stop and the search's warning."""
+    return bool(np.all(np.isfinite(values))
+                and values.max() - values.min() <= tolerance * values.min())

@@ -70,10 +70,12 @@ class ExplanationSettings(Settings):
         'inconsistent', 'm', (0.0, 10.0))
     strict: bool = parameter(
         False, "the paper's verdict instead: every scan failing its cascaded test fails the map")
-    block: int = parameter(5, 'consecutive scans registered as one rigid submap', 'scans',
-                           (1, 1000))
-    margin: int = parameter(3, 'scans added on each side of a block to its submap', 'scans',
-                            (0, 1000))
+    # the second stage runs on the viewpoints judged (scans from one place folded into one):
+    # its counts are of viewpoints, not of laser records
+    block: int = parameter(5, 'consecutive viewpoints registered as one rigid submap',
+                           'viewpoints', (1, 1000))
+    margin: int = parameter(3, 'viewpoints added on each side of a block to its submap',
+                            'viewpoints', (0, 1000))
     max_translation: float = parameter(0.5, 'largest correction trusted as a local misalignment',
                                        'm', (0.01, 100.0))
     max_rotation_deg: float = parameter(10.0, 'largest rotation trusted as a local misalignment',
@@ -84,8 +86,8 @@ class ExplanationSettings(Settings):
     min_registrations: int = parameter(
         3, 'independent submap registrations that must agree on a misalignment', '', (1, 1000))
     min_region_scans: int = parameter(
-        3, 'consecutive keyframes a misaligned region must hold on each side (a stretch, not '
-        'scans here and there)', 'scans', (1, 1000))
+        3, 'consecutive viewpoints a misaligned region must hold on each side (a stretch, not '
+        'viewpoints here and there)', 'viewpoints', (1, 1000))
     min_region_support: float = parameter(
         5.0, 'surface a region must share with its reference scans, registered onto them as '
         'one, for its correction to count (matched end points, 0.1 m apart); less leaves the '

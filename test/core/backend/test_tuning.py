@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningSettings, measure_moved,
-                                              optimize, tune_dcs)
+                                              optimize, profile_shape, tune_dcs)
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.geometry import candidate_pairs, pair_measures_naive, se2
 from map_consistency_ros.io import carmen
@@ -153,3 +153,22 @@ def test_only_pairs_that_moved_are_measured_again(intel_excerpt):
     poses = second.sensor_poses
     np.testing.assert_allclose(again.relative[involved], se2.relative(
         poses[second_pairs[involved, 0]], poses[second_pairs[involved, 1]]))
+
+
+def test_profile_shape_finds_a_minimum_at_an_end_of_the_range_and_a_flat_profile():
+    settings = TuningSettings(phi_min=1.0, phi_max=9.0, grid_steps=5, sqrt_grid=False,
+                              flat_tolerance=1e-3)
+    grid = settings.grid()
+    assert profile_shape(grid, np.array([3.0, 2.0, 1.0, 2.0, 3.0]), settings) == (None, False)
+    assert profile_shape(grid, np.array([1.0, 2.0, 3.0, 4.0, 5.0]), settings) == ('phi_min',
+                                                                                False)
+    # a refinement point beside the end does not move the minimum off the grid's end
+    phis = np.append(grid, 8.5)
+    values = np.array([5.0, 4.0, 3.0, 2.0, 1.0, 0.9])
+    assert profile_shape(phis, values, settings) == ('phi_max', False)
+    # 5.504 m against 5.506 m: a spread of 4e-4 of the smallest, within the flat tolerance
+    flat = np.array([5.506, 5.504, 5.505, 5.506, 5.505])
+    assert profile_shape(grid, flat, settings) == (None, True)
+    failed = np.array([np.inf, 5.504, 5.505, 5.506, np.inf])
+    assert profile_shape(grid, failed, settings) == (None, True)
+    assert profile_shape(grid, np.full(5, np.inf), settings) == (None, False)
