@@ -68,7 +68,9 @@ def ensure_browser() -> None:
         return
     if os.geteuid() != 0 or not shutil.which('apt-get'):
         return
-    if _run(['apt-get', 'install', '-y', '-q', 'chromium']) != 0:
+    install = ['apt-get', 'install', '-y', '-q', 'chromium']
+    # a fresh machine may have no package lists yet: fetch them once, then try again
+    if _run(install) != 0 and (_run(['apt-get', 'update', '-q']) != 0 or _run(install) != 0):
         print('bootstrap: installing chromium failed; the HTML page test will fail',
               file=sys.stderr)
 
