@@ -264,14 +264,14 @@ def tuning_problem(graph: PoseGraph) -> str | None:
     from scipy.sparse.csgraph import connected_components
     count = graph.vertex_count
     if graph.edge_count < count - 1:
-        return (f'{graph.edge_count} constraints for {count} keyframes: a connected graph needs '
+        return (f'{graph.edge_count} constraints for {count} poses: a connected graph needs '
                 f'at least {count - 1}')
     adjacency = coo_matrix((np.ones(graph.edge_count), (graph.edge_from, graph.edge_to)),
                            shape=(count, count))
     parts = connected_components(adjacency, directed=False)[0]
     if parts > 1:
-        return (f'the constraints split the {count} keyframes into {parts} disconnected parts; '
-                'every keyframe must be linked to the others')
+        return (f'the constraints split the {count} poses into {parts} disconnected parts; '
+                'every pose must be linked to the others')
     if not graph.is_loop_closure.any():
         return 'no loop closure among the constraints: DCS has nothing to tune'
     largest = float(np.abs(graph.information).max()) if graph.edge_count else 0.0

@@ -16,8 +16,9 @@ from map_consistency_ros.core.live._records import (Constraints, GraphSnapshot,
                                                     KeyframeEstimate, LoopClosure, NodeEvent,
                                                     PoseGraphNodes, PoseSample, Record, Scan)
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
-                                                   MonitorSnapshot, UpdateSummary, sensor_poses)
-from map_consistency_ros.core.live.pipeline import LivePipeline, LiveVerdict, warm_up
+                                                   MonitorSnapshot, SlamGraph, UpdateSummary,
+                                                   sensor_poses)
+from map_consistency_ros.core.live.pipeline import LivePipeline, LiveVerdict, Retune, warm_up
 
 __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
@@ -27,5 +28,5 @@ __all__ = [
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',
     'fit_rotations', 'interpolate_rotations',
     'ConsistencyMonitor', 'MonitorSettings', 'MonitorSnapshot', 'UpdateSummary', 'sensor_poses',
-    'LivePipeline', 'LiveVerdict',
+    'LivePipeline', 'LiveVerdict', 'SlamGraph', 'Retune',
 ]

@@ -79,7 +79,7 @@ def test_graphs_that_cannot_be_tuned_honestly_are_named():
     assert tuning_problem(_graph()) is None
     sparse = _graph(edge_from=[0, 2], edge_to=[1, 3], measurements=np.zeros((2, 3)),
                     information=np.repeat(np.eye(3)[None], 2, axis=0))
-    assert '2 constraints for 4 keyframes' in tuning_problem(sparse)
+    assert '2 constraints for 4 poses' in tuning_problem(sparse)
     split = _graph(edge_from=[0, 1, 0], edge_to=[1, 0, 2], measurements=np.zeros((3, 3)),
                    information=np.repeat(np.eye(3)[None], 3, axis=0),
                    poses=np.zeros((4, 3)))
