@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core.backend import PoseGraph, information_from_upper, information_upper
+from map_consistency_ros.core.backend import (PoseGraph, information_from_upper,
+                                              information_problem, information_upper)
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import (CarmenLog, LaserAngles, open_text, parse_floats,
                                            parse_robotlaser)
@@ -231,13 +232,10 @@ class _Reader:
         return log, np.array([index[vertex] for vertex, _, _ in self.scans], dtype=np.int64)
 
     def _check_information(self, information: np.ndarray) -> None:
-        if len(information) == 0:
-            return
-        smallest = np.linalg.eigvalsh(information)[:, 0]
-        if not np.all(smallest > 0.0):
-            bad = int(np.flatnonzero(~(smallest > 0.0))[0])
-            raise InputError(self.source, 'information matrix is not positive definite',
-                             self.edges[bad][3])
+        problem = information_problem(information)
+        if problem is not None:
+            raise InputError(self.source, f'information matrix {problem[1]}',
+                             self.edges[problem[0]][3])
 
     def _finite(self, tokens: list[str], line: int, what: str) -> np.ndarray:
         values = parse_floats(tokens, self.source, line, what)

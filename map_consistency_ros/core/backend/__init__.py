@@ -9,6 +9,7 @@ from map_consistency_ros.core.backend._posegraph import (CONSTRAINT_FIELDS, CONS
                                                          PoseGraph, check_constraint_rows,
                                                          constraint_rows,
                                                          information_from_upper,
+                                                         information_problem,
                                                          information_upper,
                                                          split_constraint_rows, tuning_problem)
 from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyProfile,
@@ -16,7 +17,8 @@ from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyP
                                                       TuningSettings, measure_moved, tune_dcs)
 
 __all__ = [
-    'PoseGraph', 'information_upper', 'information_from_upper', 'tuning_problem',
+    'PoseGraph', 'information_upper', 'information_from_upper', 'information_problem',
+    'tuning_problem',
     'CONSTRAINT_FIELDS', 'CONSTRAINT_WIDTH', 'constraint_rows', 'split_constraint_rows',
     'check_constraint_rows',
     'OptimizationResult', 'SparseSystem', 'optimize', 'dcs_scales', 'robust_cost',

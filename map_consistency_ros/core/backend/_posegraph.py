@@ -131,10 +131,33 @@ def _check_edges(count: int, edge_from: np.ndarray, edge_to: np.ndarray,
         raise ValueError(f'an edge refers to a vertex outside 0..{count - 1}')
     if np.any(edge_from == edge_to):
         raise ValueError(f'edge {int(np.argmax(edge_from == edge_to))} connects a vertex to itself')
-    if not np.allclose(information, np.swapaxes(information, 1, 2)):
-        raise ValueError('an information matrix is not symmetric')
-    if information.size and np.any(np.linalg.eigvalsh(information)[:, 0] <= 0.0):
-        raise ValueError('an information matrix is not positive definite')
+    problem = information_problem(information)
+    if problem is not None:
+        raise ValueError(f'an information matrix {problem[1]}')
+
+
+def information_problem(information: np.ndarray) -> tuple[int, str] | None:
+    """The first information matrix that is not symmetric positive definite, and why.
+
+    Parameters
+    ----------
+    information: (E, 3, 3) finite information matrices.
+
+    Returns
+    -------
+    (its index, 'is not symmetric' or 'is not positive definite'); None when all are.
+    """
+    if information.size == 0:
+        return None
+    asymmetric = ~np.isclose(information, np.swapaxes(information, 1, 2)).all(axis=(1, 2))
+    if asymmetric.any():
+        return int(np.flatnonzero(asymmetric)[0]), 'is not symmetric'
+    with np.errstate(invalid='ignore', over='ignore'):
+        smallest = np.linalg.eigvalsh(information)[:, 0]
+    not_definite = np.flatnonzero(~(smallest > 0.0))
+    if not_definite.size:
+        return int(not_definite[0]), 'is not positive definite'
+    return None
 
 
 def information_upper(information: np.ndarray) -> np.ndarray:
@@ -234,12 +257,10 @@ def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
     if loops.size:
         raise ValueError(f'constraint row {int(loops[0])} connects stamp {stamp_from[loops[0]]} '
                          'to itself')
-    with np.errstate(invalid='ignore', over='ignore'):
-        smallest = np.linalg.eigvalsh(information)[:, 0] if rows.size else np.zeros(0)
-    not_definite = np.flatnonzero(~(smallest > 0.0))
-    if not_definite.size:
-        raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
-                         'that is not positive definite')
+    problem = information_problem(information)
+    if problem is not None:
+        raise ValueError(f'constraint row {problem[0]} has an information matrix that '
+                         f'{problem[1]}')
     return rows
 
 
