@@ -4,7 +4,8 @@ Searches Phi* = argmin M(Phi), the average pairwise inconsistency of the DCS sol
 (Mazuran et al., ICRA 2014, Section V): a grid over sqrt(Phi), then golden-section refinement.
 Prints Phi*, M(Phi*) and the statistical test's verdict on the map at Phi*, beside the map
 at Phi = 1. Exit code 0 when the map at Phi* is consistent, 1 when not, 2 on bad input, 3 on an
-internal error.
+internal error. A graph that cannot be tuned honestly (absurd numbers, disconnected, no loop
+closure: the checks of the node's retune) is bad input.
 
 input forms:
   GRAPH.g2o                 g2o SE(2) graph whose vertices carry ROBOTLASER1 lines (gm2dl)
@@ -27,7 +28,7 @@ from pathlib import Path
 from map_consistency_ros.cli import options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult, TuningSettings,
-                                              tune_dcs)
+                                              tune_dcs, tuning_problem)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.core.verdict import Assessment, explain
@@ -121,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     EXIT_CONSISTENT when the map at Phi* is consistent, else EXIT_INCONSISTENT. InputError
-    (exit code 2) on bad options, files or graphs.
+    (exit code 2) on bad options, files or graphs, and on a graph that cannot be tuned
+    honestly (core.backend.tuning_problem: the node's retune refuses the same).
     """
     try:
         config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
@@ -129,6 +131,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError('options', str(error)) from None
     settings, parameters, explanation = config.tuning, config.consistency, config.explanation
     content, log = load_graph(args)
+    source = str(args.graph or args.build[0])
+    problem = tuning_problem(content.graph)
+    if problem:
+        raise InputError(source, f'cannot tune this graph honestly: {problem}')
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)
     else:
@@ -140,7 +146,6 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise InputError(log.path, str(error)) from None
     started = time.perf_counter()
-    source = str(args.graph or args.build[0])
     with ProgressBar('tuning Phi', enabled=not args.quiet) as progress:
         try:
             result = tune_dcs(content.graph, ranges, model, offset, settings, parameters,

@@ -19,7 +19,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from map_consistency_ros.core.backend import TuningSettings, tuning_problem
+from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.ros.diagnostics import not_monitoring
 from map_consistency_ros.ros.engine import Engine, ExplanationFailed, NotMonitoring, ShuttingDown
 from map_consistency_ros.ros.outputs import Outputs
@@ -137,7 +137,7 @@ class Services:
         if graph is None:
             return False, ('no pose graph to tune: it needs constraint rows on the constraints '
                            'topic between trajectory poses, two of them keyframes')
-        problem = tuning_problem(graph.graph)
+        problem = pipeline.tuning_problem(graph)
         if problem:
             return False, f'cannot tune this graph honestly: {problem}'
         start = time.monotonic()

@@ -1,5 +1,4 @@
 """`map-consistency tune`: the three input forms, outputs, exit codes and bad input."""
-
 import numpy as np
 import pytest
 
@@ -93,3 +92,63 @@ def test_graph_without_scans_or_with_a_wrong_log_exits_2(built, tmp_path, capsys
     broken.write_text('VERTEX_SE2 0 0 0\n')
     assert main(['tune', str(broken), *FAST]) == 2
     assert f'{broken}:1: VERTEX_SE2 needs 4 fields' in capsys.readouterr().err
+
+
+def _corrupted(path, tmp_path, name, change):
+    """A copy of the graph file at `path` with `change(lines)` applied to its lines."""
+    lines = path.read_text().splitlines()
+    change(lines)
+    copy = tmp_path / f'{name}.g2o'
+    copy.write_text('\n'.join(lines) + '\n')
+    return copy
+
+
+def _edit_edge(lines, field, value):
+    """The fourth edge's field `field` (0: the tag) set to `value`; its line number."""
+    edge = [k for k, line in enumerate(lines) if line.startswith('EDGE_SE2')][3]
+    tokens = lines[edge].split()
+    tokens[field] = value
+    lines[edge] = ' '.join(tokens)
+    return edge + 1
+
+
+def _crossing(line, split):
+    """Whether `line` is an edge between vertices on either side of `split`."""
+    if not line.startswith('EDGE_SE2'):
+        return False
+    first, second = (int(token) for token in line.split()[1:3])
+    return (first <= split) != (second <= split)
+
+
+@pytest.mark.parametrize('name, change, message', [
+    ('vertex_1e300', lambda lines: lines.__setitem__(
+        next(k for k, line in enumerate(lines) if line.startswith('VERTEX_SE2 5 ')),
+        'VERTEX_SE2 5 1e300 0 0'),
+     'cannot tune this graph honestly: pose 5 of 31 (1e+300, 0, 0) lies beyond 100000'),
+    ('edge_1e300', lambda lines: _edit_edge(lines, 3, '1e300'),
+     'EDGE_SE2 has a measurement beyond 100000'),
+    ('information_1e300', lambda lines: [_edit_edge(lines, field, '1e300') for field in (6, 9)],
+     'EDGE_SE2 has information entries beyond 1e+12'),
+    ('odometry_only', lambda lines: lines.__init__(
+        [line for line in list(lines) if not line.startswith('EDGE_SE2')
+         or abs(int(line.split()[1]) - int(line.split()[2])) == 1]),
+     'cannot tune this graph honestly: no loop closure among the constraints'),
+    ('disconnected', lambda lines: lines.__init__(
+        [line for line in list(lines) if not _crossing(line, 15)]),
+     'cannot tune this graph honestly: the constraints split the 31 poses into 2 '
+     'disconnected parts'),
+])
+def test_graphs_that_cannot_be_tuned_honestly_exit_2_naming_the_file(built, tmp_path, capsys,
+                                                                      name, change, message):
+    """Absurd numbers, no loop closure, parts: the node's retune refuses the same graphs."""
+    _, out = built
+    broken = _corrupted(out / 'graph.g2o', tmp_path, name, change)
+    assert main(['tune', str(broken), *FAST]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1
+    assert message in error
+    if message.startswith('EDGE_SE2'):  # a bad number: the line it is read from
+        line = _edit_edge((out / 'graph.g2o').read_text().splitlines(), 0, 'EDGE_SE2')
+        assert error.startswith(f'map-consistency tune: {broken}:{line}: {message}')
+    else:  # the graph as a whole
+        assert error.startswith(f'map-consistency tune: {broken}: cannot tune')

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
-                                              split_constraint_rows)
+from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, MAX_POSE_EXTENT, PoseGraph,
+                                              check_constraint_rows, split_constraint_rows)
 from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
                                                   ConsistencyResult, add_local_bounds,
                                                   evaluate_pairs, scales_from_bounds)
@@ -68,7 +68,8 @@ class MonitorSettings(Settings):
     move_angle_tolerance: float = parameter(
         0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
     max_pose_extent: float = parameter(
-        1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
+        MAX_POSE_EXTENT, 'poses with |x| or |y| beyond this are absurd: skipped and counted',
+        'm',
         (1.0, 1e9))
     max_partners: int = parameter(
         50, 'a new viewpoint is measured against at most about this many earlier overlapping '
@@ -411,10 +412,11 @@ class ConsistencyMonitor:
             (stamps in seconds, upper triangle of the information matrix).
 
         Raises ValueError (and keeps the previous set) on a wrong shape, non-finite values, an
-        edge from a stamp to itself, or an information matrix that is not symmetric positive
+        edge from a stamp to itself, a measurement beyond max_pose_extent, information entries
+        beyond MAX_INFORMATION, or an information matrix that is not symmetric positive
         definite.
         """
-        rows = check_constraint_rows(rows)
+        rows = check_constraint_rows(rows, self.settings.max_pose_extent)
         self._constraints = rows.copy()
 
     @property

@@ -33,7 +33,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from map_consistency_ros.core.backend import TuningResult, TuningSettings, tune_dcs
+from map_consistency_ros.core.backend import (TuningResult, TuningSettings, tune_dcs,
+                                              tuning_problem)
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.core.live._feed import Applied, FeedSettings, MonitorFeed
@@ -188,6 +189,20 @@ class LivePipeline:
         """
         return self.monitor.slam_graph()
 
+    def tuning_problem(self, graph: SlamGraph) -> str | None:
+        """Why `graph` cannot be tuned honestly (core.backend.tuning_problem, poses and
+        measurements within the monitor's max_pose_extent).
+
+        Parameters
+        ----------
+        graph: a graph of `slam_graph()`.
+
+        Returns
+        -------
+        The reason, a sentence for the user; None when it can be tuned.
+        """
+        return tuning_problem(graph.graph, self.feed.monitor_settings.max_pose_extent)
+
     def retune(self, graph: SlamGraph, settings: TuningSettings) -> Retune:
         """The Phi search on `graph` (any thread), judged with the monitor's test parameters.
 
@@ -199,8 +214,12 @@ class LivePipeline:
         Returns
         -------
         The Retune: Phi*, the optimized poses of every vertex, and both stages' verdict on the
-        graph's keyframes at Phi*. ValueError when the graph cannot be tuned.
+        graph's keyframes at Phi*. ValueError when the graph cannot be tuned (`tuning_problem`
+        or a singular solve).
         """
+        problem = self.tuning_problem(graph)
+        if problem:
+            raise ValueError(f'cannot tune this graph honestly: {problem}')
         tuning = tune_dcs(graph.graph, graph.ranges, graph.model, graph.laser_offset, settings,
                           self.feed.parameters, scan_vertices=graph.scan_vertices)
         assessment = explain_map(graph.scans_at(tuning.poses), tuning.consistency,

@@ -216,3 +216,27 @@ def test_a_retune_tunes_the_back_ends_graph_whatever_the_test_folds(intel):
     # the wrong loop closure is weighed out: the map as mapped, judged consistent
     assert np.abs(folded_retune.tuning.poses[:, :2] - poses[:, :2]).max() < 0.01
     assert folded_retune.assessment.consistent
+
+
+def test_a_retune_refuses_what_tune_refuses(intel):
+    """One number policy (core.backend.tuning_problem, check_constraint_rows): odometry alone is
+    no graph to tune, and a measurement beyond max_pose_extent no edge."""
+    stamps, ranges, poses, _, model = intel
+    pipeline = LivePipeline(EVERY_KEYFRAME)
+    for stamp, scan in zip(stamps, ranges):
+        pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model))
+    pipeline.apply(KeyframeEstimate(stamps=stamps, poses=poses))
+    information = np.repeat(np.diag([100.0, 100.0, 400.0])[None], SCANS - 1, axis=0)
+    odometry = constraint_rows(stamps[:-1], stamps[1:], se2.relative(poses[:-1], poses[1:]),
+                               information)
+    assert pipeline.apply(Constraints(odometry)).warnings == ()
+    graph = pipeline.slam_graph()
+    assert 'no loop closure' in pipeline.tuning_problem(graph)
+    with pytest.raises(ValueError, match='cannot tune this graph honestly: no loop closure'):
+        pipeline.retune(graph, TuningSettings(grid_steps=3))
+    absurd = odometry.copy()
+    absurd[0, 2] = 1e300  # refused on arrival, the edges before kept
+    applied = pipeline.apply(Constraints(absurd))
+    assert applied.warnings == ('constraints ignored: constraint row 0 has a measurement '
+                                'beyond 100000 (m, rad)',)
+    np.testing.assert_array_equal(pipeline.monitor.constraints, odometry)
