@@ -69,8 +69,7 @@ class MonitorSettings(Settings):
         0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
     max_pose_extent: float = parameter(
         MAX_POSE_EXTENT, 'poses with |x| or |y| beyond this are absurd: skipped and counted',
-        'm',
-        (1.0, 1e9))
+        'm', (1.0, 1e9))
     max_partners: int = parameter(
         50, 'a new viewpoint is measured against at most about this many earlier overlapping '
         'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
