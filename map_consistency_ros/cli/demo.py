@@ -96,13 +96,13 @@ def break_map(judgement: replay.BagJudgement, out: Path, args: argparse.Namespac
     expected. RuntimeError when the bag carries no constraints.
     """
     monitor = judgement.monitor
-    graph = monitor.pose_graph()
-    if graph is None:
+    slam = monitor.slam_graph()
+    if slam is None:
         raise RuntimeError('the demo bag carries no constraints')
     (start, end), error = WRONG_LOOP
-    solution = optimize(with_wrong_loop_closure(graph, (start, end), error), None, iterations=100)
-    stamps = monitor.evaluate().stamps
-    monitor.update_trajectory(stamps, solution.poses)
+    solution = optimize(with_wrong_loop_closure(slam.graph, (start, end), error), None,
+                        iterations=100)
+    monitor.update_trajectory(slam.stamps, solution.poses)
     snapshot = monitor.evaluate()
     scans = snapshot.scans()
     _, explanation = check.verdict_settings(args)

@@ -4,7 +4,8 @@ Searches Phi* = argmin M(Phi), the average pairwise inconsistency of the DCS sol
 (Mazuran et al., ICRA 2014, Section V): a grid over sqrt(Phi), then golden-section refinement.
 Prints Phi*, M(Phi*) and the statistical test's verdict on the map at Phi*, beside the map
 at Phi = 1. Exit code 0 when the map at Phi* is consistent, 1 when not, 2 on bad input, 3 on an
-internal error.
+internal error. A graph that cannot be tuned honestly (absurd numbers, disconnected, no loop
+closure: the checks of the node's retune) is bad input.
 
 input forms:
   GRAPH.g2o                 g2o SE(2) graph whose vertices carry ROBOTLASER1 lines (gm2dl)
@@ -31,7 +32,7 @@ import numpy as np
 from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult, TuningSettings,
-                                              tune_dcs)
+                                              tune_dcs, tuning_problem)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.core.verdict import INCONSISTENT, Assessment, explain
@@ -124,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     The exit code of the verdict on the map at Phi* (cli/exit_codes.py). InputError
-    (exit code 2) on bad options, files or graphs.
+    (exit code 2) on bad options, files or graphs, and on a graph that cannot be tuned
+    honestly (core.backend.tuning_problem: the node's retune refuses the same).
     """
     try:
         config = options.configuration(args, ('consistency', 'explanation', 'tuning'))
@@ -133,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
     settings, parameters, explanation = config.tuning, config.consistency, config.explanation
     options.check_sensor_options(args)
     content, log = load_graph(args)
+    source = str(args.graph or args.build[0])
+    problem = tuning_problem(content.graph)
+    if problem:
+        raise InputError(source, f'cannot tune this graph honestly: {problem}')
     if args.scans is not None:
         ranges, offset = log.ranges, (0.0, 0.0, 0.0)
     else:
@@ -144,7 +150,6 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise InputError(log.path, str(error)) from None
     started = time.perf_counter()
-    source = str(args.graph or args.build[0])
     with ProgressBar('tuning Phi', enabled=not args.quiet) as progress:
         try:
             result = tune_dcs(content.graph, ranges, model, offset, settings, parameters,

@@ -297,7 +297,7 @@ def read_carmen_log(path: str | Path) -> CarmenLog:
     ROBOTLASER1 record (None for a FLASER-only log). Raises InputError naming the file and line
     for a missing or unreadable file, a truncated or non-numeric record, records with differing
     beam counts, a number outside its plausible range (io/limits.py: ranges and positions
-    within 1e6 m, headings within 1e3 rad, timestamps in [0, 2**31) s), or a log without laser
+    within 1e5 m, headings within 1e3 rad, timestamps in [0, 2**31) s), or a log without laser
     records.
     """
     path = Path(path)

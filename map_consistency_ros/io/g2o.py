@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.core.backend import PoseGraph, information_from_upper, information_upper
+from map_consistency_ros.core.backend import (PoseGraph, edge_problem, information_from_upper,
+                                              information_upper)
 from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.io.carmen import (READ_ERRORS, CarmenLog, LaserAngles,
                                            check_laser_records, check_poses, open_text,
@@ -91,8 +92,10 @@ def read_g2o(path: str | Path) -> G2oGraph:
     ids, and the ROBOTLASER1 scans (None when there are none). Raises InputError naming the file
     and line for a missing or unreadable file, a malformed, non-numeric or non-finite record, a
     vertex pose or laser value outside its plausible range (io/limits.py), an unsupported
-    record type, a duplicate or unknown vertex id, an edge from a vertex to itself,
-    an information matrix that is not positive definite, a ROBOTLASER1 line before any vertex,
+    record type, a duplicate or unknown vertex id, an edge from a vertex to itself, an edge
+    that core.backend.edge_problem refuses (a measurement beyond MAX_POSE_EXTENT, information
+    entries beyond MAX_INFORMATION, an information matrix that is not positive definite), a
+    ROBOTLASER1 line before any vertex,
     scans with differing beam counts, or a file without vertices.
     """
     path = Path(path)
@@ -217,7 +220,7 @@ class _Reader:
             if a == b:
                 raise InputError(self.source, f'edge connects vertex {a} to itself', line)
         information = information_from_upper(values[:, 3:])
-        self._check_information(information)
+        self._check_edges(values[:, :3], information)
         graph = PoseGraph(poses=poses, edge_from=edge_from, edge_to=edge_to,
                           measurements=values[:, :3], information=information, fixed=fixed)
         laser, laser_vertices = self._laser(index)
@@ -242,14 +245,10 @@ class _Reader:
         check_laser_records(log)
         return log, np.array([index[vertex] for vertex, _, _ in self.scans], dtype=np.int64)
 
-    def _check_information(self, information: np.ndarray) -> None:
-        if len(information) == 0:
-            return
-        smallest = np.linalg.eigvalsh(information)[:, 0]
-        if not np.all(smallest > 0.0):
-            bad = int(np.flatnonzero(~(smallest > 0.0))[0])
-            raise InputError(self.source, 'information matrix is not positive definite',
-                             self.edges[bad][3])
+    def _check_edges(self, measurements: np.ndarray, information: np.ndarray) -> None:
+        problem = edge_problem(measurements, information)
+        if problem is not None:
+            raise InputError(self.source, f'EDGE_SE2 {problem[1]}', self.edges[problem[0]][3])
 
     def _finite(self, tokens: list[str], line: int, what: str) -> np.ndarray:
         values = parse_floats(tokens, self.source, line, what)

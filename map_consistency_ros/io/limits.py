@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from map_consistency_ros.core.geometry.se2 import MAX_EXTENT
+
 
 class Limit(NamedTuple):
     """The plausible values of one kind of number: finite, |value| <= bound, and not negative
@@ -22,9 +24,9 @@ class Limit(NamedTuple):
     signed: bool = True
 
 
-# A 2D laser map, indoors or outdoors, spans kilometres at most: a coordinate or a laser
-# reading beyond a thousand kilometres is no position on such a map.
-DISTANCE = Limit(1e6, 'm')
+# A coordinate or a laser reading beyond core's MAX_EXTENT (100 km) is no position on a 2D laser
+# map (core/geometry/se2.py): the same bound as the pose graph's and the node's.
+DISTANCE = Limit(MAX_EXTENT, 'm')
 
 # Headings are wrapped to (-pi, pi]: beyond a thousand radians (160 turns) a float has lost
 # the precision wrapping needs (1e200 rad wraps to an arbitrary angle).

@@ -89,7 +89,7 @@ def scan_to_numpy(msg, max_range: float = math.inf) -> tuple[float, np.ndarray, 
     (header stamp in seconds, ranges (K,) float64 metres, SensorModel); the model's range_min
     is the scan's when finite and positive, else 0. Raises ValueError, naming the stamp, for
     fewer than 2 ranges, a negative stamp, angle fields that are not finite or beyond two
-    turns, a non-positive angle_increment, a range_max that is NaN, negative or beyond 1e6 m
+    turns, a non-positive angle_increment, a range_max that is NaN, negative or beyond 1e5 m (io/limits.py)
     (io/limits.py), angle fields that disagree with the number of ranges by more than one
     beam (drivers differ on whether angle_max is inclusive), or a geometry SensorModel
     rejects.

@@ -107,13 +107,13 @@ class Outputs:
         self._markers.publish(self._marker_updates.clear(self._engine.frame_id, self._stamp()))
 
     def publish_tuning(self, phi: float, stamps: np.ndarray, poses: np.ndarray) -> None:
-        """A retune's Phi* and the keyframe poses optimized with it.
+        """A retune's Phi* and the graph's poses optimized with it.
 
         Parameters
         ----------
         phi: Phi*, published on ~/tuned_phi and kept for diagnostics.
-        stamps: (K,) the keyframes' stamps, seconds.
-        poses: (K, 3) their optimized poses (x, y, theta), published on
+        stamps: (N,) the stamps of the graph's vertices, seconds.
+        poses: (N, 3) their optimized poses (x, y, theta), published on
             ~/optimized_trajectory in the engine's frame.
         """
         self.phi = phi

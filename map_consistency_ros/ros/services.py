@@ -19,10 +19,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from map_consistency_ros.core.backend import TuningSettings, tune_dcs, tuning_problem
-from map_consistency_ros.core.geometry import ScanSet
-from map_consistency_ros.core.live import sensor_poses
-from map_consistency_ros.core.verdict import explain
+from map_consistency_ros.core.backend import TuningSettings
 from map_consistency_ros.ros.diagnostics import not_monitoring
 from map_consistency_ros.ros.engine import Engine, ExplanationFailed, NotMonitoring, ShuttingDown
 from map_consistency_ros.ros.outputs import Outputs
@@ -39,8 +36,8 @@ class Services:
     node: the node whose names the services take (e.g. /map_consistency/check).
     engine: the worker that runs the jobs.
     outputs: where a retune's result goes.
-    tuning: the Phi search's settings; a retune tests its map with the statistical test's
-        parameters the engine's monitor runs with.
+    tuning: the Phi search's settings; a retune (LivePipeline.retune) tests its map with the
+        statistical test's parameters the engine's monitor runs with.
     settings: the node's settings.
     """
 
@@ -136,24 +133,19 @@ class Services:
 
     def _retune(self) -> tuple[bool, str]:
         pipeline = self._engine.pipeline
-        graph, snapshot = self._engine.run(
-            lambda: (pipeline.monitor.pose_graph(), pipeline.evaluate()),
-            self._settings.service_timeout)
+        graph = self._engine.run(pipeline.slam_graph, self._settings.service_timeout)
         if graph is None:
-            return False, ('no pose graph to tune: it needs two keyframes and constraint rows '
-                           'on the constraints topic whose stamps match keyframes')
-        problem = tuning_problem(graph)
+            return False, ('no pose graph to tune: it needs constraint rows on the constraints '
+                           'topic between trajectory poses, two of them keyframes')
+        problem = pipeline.tuning_problem(graph)
         if problem:
             return False, f'cannot tune this graph honestly: {problem}'
-        # judged with the node's statistical test, the parameters the monitor runs with
-        parameters = pipeline.feed.parameters
         start = time.monotonic()
         future: Future = Future()
 
         def tune() -> None:
             try:
-                future.set_result(tune_dcs(graph, snapshot.ranges, snapshot.model,
-                                           snapshot.laser_offset, self._tuning, parameters))
+                future.set_result(pipeline.retune(graph, self._tuning))
             except Exception as error:  # noqa: BLE001 - handed to the waiting service
                 future.set_exception(error)
 
@@ -161,13 +153,13 @@ class Services:
         # abandoned (it cannot be interrupted)
         self._tuner = threading.Thread(target=tune, name='map_consistency_retune', daemon=True)
         self._tuner.start()
-        result = self._engine.wait(future, math.inf)
+        retune = self._engine.wait(future, math.inf)
         elapsed = time.monotonic() - start
-        self._outputs.publish_tuning(result.phi, snapshot.stamps, result.poses)
-        tuned = ScanSet.from_ranges(snapshot.ranges,
-                                    sensor_poses(result.poses, snapshot.laser_offset),
-                                    snapshot.model)
-        verdict = explain(tuned, result.consistency, pipeline.explanation)
+        result = retune.tuning
+        self._outputs.publish_tuning(result.phi, graph.stamps, result.poses)
+        outside = (f'; {graph.keyframes_outside} keyframes named by no constraint left out'
+                   if graph.keyframes_outside else '')
         return True, (f'Phi* = {result.phi:.6g} (M = {result.average_inconsistency:.4g} m): '
-                      f'optimized map {verdict.summary_line()}; {graph.edge_count} edges, '
-                      f'{result.profile_phi.size} Phi values in {elapsed:.1f} s')
+                      f'optimized map {retune.assessment.summary_line()}; '
+                      f'{graph.graph.vertex_count} poses, {graph.graph.edge_count} edges, '
+                      f'{result.profile_phi.size} Phi values in {elapsed:.1f} s{outside}')

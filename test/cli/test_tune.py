@@ -152,3 +152,67 @@ def test_a_graph_without_edges_or_loop_closures_is_refused_in_one_line(built, tm
         assert re.search(r'\b(no|0) (edges?|constraints?)\b', error)
     else:
         assert 'no loop closure' in error
+
+
+def _corrupted(path, tmp_path, name, change):
+    """A copy of the graph file at `path` with `change(lines)` applied to its lines."""
+    lines = path.read_text().splitlines()
+    change(lines)
+    copy = tmp_path / f'{name}.g2o'
+    copy.write_text('\n'.join(lines) + '\n')
+    return copy
+
+
+def _edit_edge(lines, field, value):
+    """The fourth edge's field `field` (0: the tag) set to `value`; its line number."""
+    edge = [k for k, line in enumerate(lines) if line.startswith('EDGE_SE2')][3]
+    tokens = lines[edge].split()
+    tokens[field] = value
+    lines[edge] = ' '.join(tokens)
+    return edge + 1
+
+
+def _crossing(line, split):
+    """Whether `line` is an edge between vertices on either side of `split`."""
+    if not line.startswith('EDGE_SE2'):
+        return False
+    first, second = (int(token) for token in line.split()[1:3])
+    return (first <= split) != (second <= split)
+
+
+@pytest.mark.parametrize('name, change, message', [
+    ('vertex_1e300', lambda lines: lines.__setitem__(
+        next(k for k, line in enumerate(lines) if line.startswith('VERTEX_SE2 5 ')),
+        'VERTEX_SE2 5 1e300 0 0'),
+     'vertex pose x 1e+300 is beyond 100000 m'),  # refused where it is read
+    ('edge_1e300', lambda lines: _edit_edge(lines, 3, '1e300'),
+     'EDGE_SE2 has a measurement beyond 100000'),
+    ('information_1e300', lambda lines: [_edit_edge(lines, field, '1e300') for field in (6, 9)],
+     'EDGE_SE2 has information entries beyond 1e+12'),
+    ('odometry_only', lambda lines: lines.__init__(
+        [line for line in list(lines) if not line.startswith('EDGE_SE2')
+         or abs(int(line.split()[1]) - int(line.split()[2])) == 1]),
+     'cannot tune this graph honestly: no loop closure among the constraints'),
+    ('disconnected', lambda lines: lines.__init__(
+        [line for line in list(lines) if not _crossing(line, 15)]),
+     'cannot tune this graph honestly: the constraints split the 31 poses into 2 '
+     'disconnected parts'),
+])
+def test_graphs_that_cannot_be_tuned_honestly_exit_2_naming_the_file(built, tmp_path, capsys,
+                                                                      name, change, message):
+    """Absurd numbers, no loop closure, parts: the node's retune refuses the same graphs."""
+    _, out = built
+    broken = _corrupted(out / 'graph.g2o', tmp_path, name, change)
+    assert main(['tune', str(broken), *FAST]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1
+    assert message in error
+    if message.startswith('EDGE_SE2'):  # a bad number: the line it is read from
+        line = _edit_edge((out / 'graph.g2o').read_text().splitlines(), 0, 'EDGE_SE2')
+        assert error.startswith(f'map-consistency tune: {broken}:{line}: {message}')
+    elif message.startswith('vertex'):
+        line = 1 + next(k for k, text in enumerate(broken.read_text().splitlines())
+                        if text.startswith('VERTEX_SE2 5 '))
+        assert error.startswith(f'map-consistency tune: {broken}:{line}: {message}')
+    else:  # the graph as a whole
+        assert error.startswith(f'map-consistency tune: {broken}: cannot tune')

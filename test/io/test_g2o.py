@@ -115,6 +115,8 @@ LASER = laser_line()
     (GOOD + 'FIX\n', 'FIX names no vertex', 3),
     (GOOD + 'EDGE_SE2 0 0 1 0 0 1 0 0 1 0 1\n', 'connects vertex 0 to itself', 3),
     (GOOD + 'EDGE_SE2 0 1 1 0 0 1 0 0 -1 0 1\n', 'not positive definite', 3),
+    (GOOD + 'EDGE_SE2 0 1 1 0 0 1e300 0 0 1e300 0 1\n', r'information entries beyond 1e\+12', 3),
+    (GOOD + 'EDGE_SE2 0 1 1e300 0 0 1 0 0 1 0 1\n', 'measurement beyond 100000', 3),
     (LASER + GOOD, 'ROBOTLASER1 before any VERTEX_SE2', 1),
     (GOOD + 'ROBOTLASER1 0 -1.5 3 1 8 0.01 0 4 1 2\n', 'truncated ROBOTLASER1', 3),
     ('# only a comment\n', 'no VERTEX_SE2 records', None),

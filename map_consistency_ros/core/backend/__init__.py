@@ -6,9 +6,11 @@ the paper's test."""
 from map_consistency_ros.core.backend._dcs import (OptimizationResult, SparseSystem, dcs_scales,
                                                    edge_residuals, optimize, robust_cost)
 from map_consistency_ros.core.backend._posegraph import (CONSTRAINT_FIELDS, CONSTRAINT_WIDTH,
+                                                         MAX_INFORMATION, MAX_POSE_EXTENT,
                                                          PoseGraph, check_constraint_rows,
-                                                         constraint_rows,
+                                                         constraint_rows, edge_problem,
                                                          information_from_upper,
+                                                         information_problem,
                                                          information_upper,
                                                          split_constraint_rows, tuning_problem)
 from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyProfile,
@@ -17,7 +19,8 @@ from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyP
                                                       tune_dcs)
 
 __all__ = [
-    'PoseGraph', 'information_upper', 'information_from_upper', 'tuning_problem',
+    'PoseGraph', 'information_upper', 'information_from_upper', 'information_problem',
+    'tuning_problem', 'edge_problem', 'MAX_INFORMATION', 'MAX_POSE_EXTENT',
     'CONSTRAINT_FIELDS', 'CONSTRAINT_WIDTH', 'constraint_rows', 'split_constraint_rows',
     'check_constraint_rows',
     'OptimizationResult', 'SparseSystem', 'optimize', 'dcs_scales', 'robust_cost',

@@ -23,6 +23,10 @@ _UPPER = np.triu_indices(3)
 # Information entries beyond this (a standard deviation below a micrometre) make the
 # normal equations overflow or lose every other edge to rounding: no honest tuning.
 MAX_INFORMATION = 1e12
+# Coordinates of poses and measured displacements (m, rad) beyond this are corrupt numbers, not
+# a place (geometry.se2.MAX_EXTENT): the node's max_pose_extent defaults to it, and a graph is
+# tuned within it.
+MAX_POSE_EXTENT = se2.MAX_EXTENT
 
 
 @dataclass(frozen=True)
@@ -131,10 +135,33 @@ def _check_edges(count: int, edge_from: np.ndarray, edge_to: np.ndarray,
         raise ValueError(f'an edge refers to a vertex outside 0..{count - 1}')
     if np.any(edge_from == edge_to):
         raise ValueError(f'edge {int(np.argmax(edge_from == edge_to))} connects a vertex to itself')
-    if not np.allclose(information, np.swapaxes(information, 1, 2)):
-        raise ValueError('an information matrix is not symmetric')
-    if information.size and np.any(np.linalg.eigvalsh(information)[:, 0] <= 0.0):
-        raise ValueError('an information matrix is not positive definite')
+    problem = information_problem(information)
+    if problem is not None:
+        raise ValueError(f'an information matrix {problem[1]}')
+
+
+def information_problem(information: np.ndarray) -> tuple[int, str] | None:
+    """The first information matrix that is not symmetric positive definite, and why.
+
+    Parameters
+    ----------
+    information: (E, 3, 3) finite information matrices.
+
+    Returns
+    -------
+    (its index, 'is not symmetric' or 'is not positive definite'); None when all are.
+    """
+    if information.size == 0:
+        return None
+    asymmetric = ~np.isclose(information, np.swapaxes(information, 1, 2)).all(axis=(1, 2))
+    if asymmetric.any():
+        return int(np.flatnonzero(asymmetric)[0]), 'is not symmetric'
+    with np.errstate(invalid='ignore', over='ignore'):
+        smallest = np.linalg.eigvalsh(information)[:, 0]
+    not_definite = np.flatnonzero(~(smallest > 0.0))
+    if not_definite.size:
+        return int(not_definite[0]), 'is not positive definite'
+    return None
 
 
 def information_upper(information: np.ndarray) -> np.ndarray:
@@ -204,18 +231,58 @@ def split_constraint_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
             information_from_upper(rows[:, _UPPER_TRIANGLE]))
 
 
-def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
+def edge_problem(measurements: np.ndarray, information: np.ndarray,
+                 extent: float = MAX_POSE_EXTENT) -> tuple[int, str] | None:
+    """The first edge whose numbers no solve can take, and why: the one number policy of a
+    graph's edges, wherever they come from (constraint rows, g2o files, a graph to tune).
+
+    Parameters
+    ----------
+    measurements: (E, 3) the edges' measurements (dx, dy in m, dtheta in rad).
+    information: (E, 3, 3) their information matrices.
+    extent: the largest plausible magnitude of a measurement's coordinates.
+
+    Returns
+    -------
+    (the edge's index, the reason: non-finite values, a measurement beyond `extent`,
+    information entries beyond MAX_INFORMATION, an information matrix that is not symmetric
+    positive definite); None when every edge is sound.
+    """
+    measurements = np.asarray(measurements, dtype=np.float64).reshape(-1, 3)
+    information = np.asarray(information, dtype=np.float64).reshape(-1, 3, 3)
+    finite = (np.isfinite(measurements).all(axis=1)
+              & np.isfinite(information).all(axis=(1, 2)))
+    with np.errstate(invalid='ignore'):
+        beyond = finite & (np.abs(measurements).max(axis=1, initial=0.0) > extent)
+        huge = finite & (np.abs(information).max(axis=(1, 2), initial=0.0) > MAX_INFORMATION)
+    found = [(int(np.flatnonzero(mask)[0]), reason) for mask, reason in (
+        (~finite, 'has non-finite values'),
+        (beyond, f'has a measurement beyond {extent:g} (m, rad)'),
+        (huge, f'has information entries beyond {MAX_INFORMATION:g}, which overflow the '
+               'solver')) if mask.any()]
+    sound = finite & ~huge
+    matrices = np.where(sound[:, None, None], information, np.eye(3))
+    problem = information_problem(matrices)
+    if problem is not None:
+        found.append((problem[0], f'has an information matrix that {problem[1]}'))
+    # the first edge, and its first reason in the order above (min keeps the first of ties)
+    return min(found, key=lambda item: item[0]) if found else None
+
+
+def check_constraint_rows(rows: np.ndarray, extent: float = MAX_POSE_EXTENT) -> np.ndarray:
     """Constraint rows checked before they become edges.
 
     Parameters
     ----------
     rows: (E, 11) rows laid out as CONSTRAINT_FIELDS (anything np.asarray takes).
+    extent: the largest plausible magnitude of a measurement's coordinates (edge_problem).
 
     Returns
     -------
     The rows as a float (E, 11) array. ValueError naming the first bad row on a wrong shape,
-    non-finite values, information entries beyond MAX_INFORMATION, an edge from a stamp to
-    itself, or an information matrix that is not positive definite.
+    non-finite values, an edge from a stamp to itself, or an edge that edge_problem refuses
+    (a measurement beyond `extent`, information entries beyond MAX_INFORMATION, an
+    information matrix that is not positive definite).
     """
     rows = np.asarray(rows, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] != CONSTRAINT_WIDTH:
@@ -224,35 +291,31 @@ def check_constraint_rows(rows: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(rows).all(axis=1)
     if bad.any():
         raise ValueError(f'constraint row {int(np.flatnonzero(bad)[0])} has non-finite values')
-    stamp_from, stamp_to, _, information = split_constraint_rows(rows)
-    huge = np.flatnonzero(np.abs(rows[:, _UPPER_TRIANGLE]).max(axis=1, initial=0.0)
-                          > MAX_INFORMATION)
-    if huge.size:
-        raise ValueError(f'constraint row {int(huge[0])} has information entries beyond '
-                         f'{MAX_INFORMATION:g}, which overflow the solver')
+    stamp_from, stamp_to, measurements, information = split_constraint_rows(rows)
     loops = np.flatnonzero(stamp_from == stamp_to)
     if loops.size:
         raise ValueError(f'constraint row {int(loops[0])} connects stamp {stamp_from[loops[0]]} '
                          'to itself')
-    with np.errstate(invalid='ignore', over='ignore'):
-        smallest = np.linalg.eigvalsh(information)[:, 0] if rows.size else np.zeros(0)
-    not_definite = np.flatnonzero(~(smallest > 0.0))
-    if not_definite.size:
-        raise ValueError(f'constraint row {int(not_definite[0])} has an information matrix '
-                         'that is not positive definite')
+    problem = edge_problem(measurements, information, extent)
+    if problem is not None:
+        raise ValueError(f'constraint row {problem[0]} {problem[1]}')
     return rows
 
 
-def tuning_problem(graph: PoseGraph) -> str | None:
-    """Why DCS tuning of `graph` could not be honest.
+def tuning_problem(graph: PoseGraph, extent: float = MAX_POSE_EXTENT) -> str | None:
+    """Why DCS tuning of `graph` could not be honest: the one check before a Phi search, for
+    `map-consistency tune` and the node's retune alike.
 
-    Refused: a disconnected graph (the parts float freely against each other, any Phi gives
-    some map), one without loop closures (DCS scales only those: every Phi gives the same
-    map), and information entries beyond MAX_INFORMATION (the solve overflows or drowns).
+    Refused: a pose or an edge with numbers no solve can take (coordinates beyond `extent`,
+    edges that edge_problem refuses: information entries beyond MAX_INFORMATION overflow the
+    solve or drown the other edges), a disconnected graph (the parts float freely against each
+    other, any Phi gives some map), and one without loop closures (DCS scales only those:
+    every Phi gives the same map).
 
     Parameters
     ----------
     graph: the graph the Phi search would run on.
+    extent: the largest plausible magnitude of a pose's or a measurement's coordinates.
 
     Returns
     -------
@@ -263,19 +326,25 @@ def tuning_problem(graph: PoseGraph) -> str | None:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     count = graph.vertex_count
+    beyond = np.flatnonzero(np.abs(graph.poses).max(axis=1) > extent)
+    if beyond.size:
+        pose = graph.poses[beyond[0]]
+        return (f'pose {int(beyond[0])} of {count} ({pose[0]:.3g}, {pose[1]:.3g}, '
+                f'{pose[2]:.3g}) lies beyond {extent:g} (m, rad)')
+    problem = edge_problem(graph.measurements, graph.information, extent)
+    if problem is not None:
+        edge = problem[0]
+        return (f'edge {edge} (pose {int(graph.edge_from[edge])} to '
+                f'{int(graph.edge_to[edge])}) {problem[1]}')
     if graph.edge_count < count - 1:
-        return (f'{graph.edge_count} constraints for {count} keyframes: a connected graph needs '
+        return (f'{graph.edge_count} constraints for {count} poses: a connected graph needs '
                 f'at least {count - 1}')
     adjacency = coo_matrix((np.ones(graph.edge_count), (graph.edge_from, graph.edge_to)),
                            shape=(count, count))
     parts = connected_components(adjacency, directed=False)[0]
     if parts > 1:
-        return (f'the constraints split the {count} keyframes into {parts} disconnected parts; '
-                'every keyframe must be linked to the others')
+        return (f'the constraints split the {count} poses into {parts} disconnected parts; '
+                'every pose must be linked to the others')
     if not graph.is_loop_closure.any():
         return 'no loop closure among the constraints: DCS has nothing to tune'
-    largest = float(np.abs(graph.information).max()) if graph.edge_count else 0.0
-    if largest > MAX_INFORMATION:
-        return (f'information entries up to {largest:.3g} overflow the solver (at most '
-                f'{MAX_INFORMATION:g})')
     return None

@@ -108,8 +108,8 @@ class Evaluation:
 
 @dataclass(frozen=True)
 class TuningResult:
-    """Phi*, M(Phi*) (m), the optimized poses (N, 3), every evaluated (Phi, M(Phi)) sorted by
-    Phi, and the statistical test on the map at Phi*.
+    """Phi*, M(Phi*) (m), the optimized poses (N, 3) of every vertex, every evaluated
+    (Phi, M(Phi)) sorted by Phi, and the statistical test on the map (the scans) at Phi*.
 
     `at_bound` is 'phi_min' or 'phi_max' when the grid's smallest M lies at that end of the
     search range (None otherwise); `flat` is True when every finite M of the profile lies
@@ -138,25 +138,30 @@ class InconsistencyProfile:
     Parameters
     ----------
     graph: the pose graph; every solve starts from its poses.
-    ranges: (N, K) the scan of every vertex (m).
+    ranges: (S, K) the scans (m): of every vertex, or of the vertices `scan_vertices`.
     model: the sensor model of the scans.
     laser_offset: (3,) the laser's pose (x, y, theta) in the vertex frame.
     settings: the search's settings (the solves' and the reuse of measures).
+    scan_vertices: (S,) the vertex of each row of `ranges`, increasing; None: row i is the
+        scan of vertex i (S = N). A SLAM graph holds vertices whose scans the test folded into
+        a viewpoint: they are solved with the others, but M is measured on the scans given.
     """
 
     def __init__(self, graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
                  laser_offset: np.ndarray = (0.0, 0.0, 0.0),
-                 settings: TuningSettings = TuningSettings()) -> None:
+                 settings: TuningSettings = TuningSettings(),
+                 scan_vertices: np.ndarray | None = None) -> None:
         self.graph = graph
         self.settings = settings
         self.laser_offset = np.asarray(laser_offset, dtype=np.float64)
+        self.scan_vertices = _scan_vertices(scan_vertices, graph.vertex_count, len(ranges))
         self.scans = ScanSet.from_ranges(ranges, self.sensor_poses(graph.poses), model)
         self._system = SparseSystem(graph)
         self._cache: dict[float, Evaluation] = {}
         self._measured: MeasuredPairs | None = None
 
     def sensor_poses(self, poses: np.ndarray) -> np.ndarray:
-        """The laser poses of the vertices at `poses`.
+        """The laser poses of the scans with the vertices at `poses`.
 
         Parameters
         ----------
@@ -164,9 +169,9 @@ class InconsistencyProfile:
 
         Returns
         -------
-        (N, 3) laser poses, `laser_offset` composed onto each.
+        (S, 3) laser poses: `laser_offset` composed onto the pose of each scan's vertex.
         """
-        return se2.compose(poses, self.laser_offset)
+        return se2.compose(poses[self.scan_vertices], self.laser_offset)
 
     def scans_at(self, poses: np.ndarray) -> ScanSet:
         """The graph's scans with the vertices at `poses`.
@@ -177,7 +182,7 @@ class InconsistencyProfile:
 
         Returns
         -------
-        The ScanSet of the N scans placed there.
+        The ScanSet of the S scans placed there.
         """
         return self.scans.with_poses(self.sensor_poses(poses))
 
@@ -260,6 +265,22 @@ class InconsistencyProfile:
         return average_inconsistency(self._measured.measures)
 
 
+def _scan_vertices(scan_vertices: np.ndarray | None, count: int, scans: int) -> np.ndarray:
+    """The vertex of each scan (all of them when None); ValueError unless increasing
+    vertex indices, one per scan."""
+    if scan_vertices is None:
+        if scans != count:
+            raise ValueError(f'{scans} scans for {count} vertices')
+        return np.arange(count)
+    vertices = np.asarray(scan_vertices, dtype=np.int64).reshape(-1)
+    if vertices.size != scans:
+        raise ValueError(f'{scans} scans but {vertices.size} scan vertices')
+    if vertices.size and (vertices[0] < 0 or vertices[-1] >= count
+                          or np.any(np.diff(vertices) <= 0)):
+        raise ValueError(f'scan vertices must be increasing indices in 0..{count - 1}')
+    return vertices
+
+
 @dataclass(frozen=True)
 class MeasuredPairs:
     """Measures of sorted candidate pairs (P, 2), with the relative sensor pose (P, 3) of scan j
@@ -321,13 +342,14 @@ def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
              settings: TuningSettings = TuningSettings(),
              parameters: ConsistencyParameters = ConsistencyParameters(),
              progress: Progress | None = None,
-             profile: InconsistencyProfile | None = None) -> TuningResult:
+             profile: InconsistencyProfile | None = None,
+             scan_vertices: np.ndarray | None = None) -> TuningResult:
     """Find Phi* = argmin M(Phi) on [phi_min, phi_max] and test the map at Phi*.
 
     Parameters
     ----------
     graph: the pose graph; every solve starts from its poses.
-    ranges: (N, K) the scan of every vertex (m).
+    ranges: (S, K) the scans (m): of every vertex, or of the vertices `scan_vertices`.
     model: the sensor model of the scans.
     laser_offset: (3,) the laser's pose (x, y, theta) in the vertex frame.
     settings: the search's settings.
@@ -338,13 +360,16 @@ def tune_dcs(graph: PoseGraph, ranges: np.ndarray, model: SensorModel,
     profile: an InconsistencyProfile built on the same graph, scans and settings, to share
         evaluations with the caller (e.g. to look at Phi = 1 afterwards without solving
         again); None: a new one.
+    scan_vertices: (S,) the vertex of each scan, increasing (InconsistencyProfile); None:
+        one scan per vertex.
 
     Returns
     -------
-    The TuningResult. ValueError when the graph cannot be solved (no edge constrains the
-    free vertices).
+    The TuningResult: `poses` those of every vertex, the test on the S scans. ValueError when
+    the graph cannot be solved (no edge constrains the free vertices).
     """
-    profile = profile or InconsistencyProfile(graph, ranges, model, laser_offset, settings)
+    profile = profile or InconsistencyProfile(graph, ranges, model, laser_offset, settings,
+                                              scan_vertices)
     grid = settings.grid()
     refinements = _refinement_steps(grid, settings)
     total = len(grid) + refinements + 1

@@ -1,6 +1,11 @@
 """Planar rigid transforms on pose arrays of shape (..., 3) holding (x, y, theta)."""
 import numpy as np
 
+# A 2D laser map, indoors or outdoors, spans kilometres: a coordinate (or a displacement, or a
+# laser reading) beyond 100 km is a corrupt number, not a place. Every input is held to it
+# (io/limits.py DISTANCE, core.backend MAX_POSE_EXTENT, the node's max_pose_extent default).
+MAX_EXTENT = 1e5  # m
+
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
     """Map angles to [-pi, pi).

@@ -18,8 +18,9 @@ from map_consistency_ros.core.live._records import (Constraints, DroppedScans, G
                                                     PoseGraphNodes, PoseSample, Record, Scan)
 from map_consistency_ros.core.live._scan_counts import ScanCounts
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
-                                                   MonitorSnapshot, UpdateSummary, sensor_poses)
-from map_consistency_ros.core.live.pipeline import LivePipeline, LiveVerdict, warm_up
+                                                   MonitorSnapshot, SlamGraph, UpdateSummary,
+                                                   sensor_poses)
+from map_consistency_ros.core.live.pipeline import LivePipeline, LiveVerdict, Retune, warm_up
 
 __all__ = [
     'Scan', 'KeyframeEstimate', 'PoseSample', 'Constraints', 'GraphSnapshot', 'Record',
@@ -30,5 +31,5 @@ __all__ = [
     'BridgeSettings', 'BridgeCounts', 'HeadingFit', 'SlamToolboxBridge', 'neighbourhoods',
     'fit_rotations', 'interpolate_rotations',
     'ConsistencyMonitor', 'MonitorSettings', 'MonitorSnapshot', 'UpdateSummary', 'sensor_poses',
-    'LivePipeline', 'LiveVerdict',
+    'LivePipeline', 'LiveVerdict', 'SlamGraph', 'Retune',
 ]

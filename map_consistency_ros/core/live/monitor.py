@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, PoseGraph, check_constraint_rows,
-                                              split_constraint_rows)
+from map_consistency_ros.core.backend import (CONSTRAINT_WIDTH, MAX_POSE_EXTENT, PoseGraph,
+                                              check_constraint_rows, split_constraint_rows)
 from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
                                                   ConsistencyResult, add_local_bounds,
                                                   evaluate_pairs, scales_from_bounds)
@@ -40,7 +40,7 @@ from map_consistency_ros.core.geometry import (PairMeasures, ScanExtentIndex, Sc
                                                SensorModel, disagreement, is_new_viewpoint,
                                                measure_pairs, read_only, same_pose, se2)
 from map_consistency_ros.core.live._keyframes import (FOLDED, NO_SCAN, Keyframes, match_sorted,
-                                                      match_stamps, rank_of_slot)
+                                                      rank_of_slot)
 from map_consistency_ros.core.live._pair_cache import PairCache, key_slots, pair_keys
 from map_consistency_ros.core.live._pair_selection import PartnerBudget, local_pair_keys
 from map_consistency_ros.core.live._placement import Placement
@@ -73,8 +73,8 @@ class MonitorSettings(Settings):
     move_angle_tolerance: float = parameter(
         0.005, 'a keyframe turning further is measured again', 'rad', (0.0, 3.14))
     max_pose_extent: float = parameter(
-        1e5, 'poses with |x| or |y| beyond this are absurd: skipped and counted', 'm',
-        (1.0, 1e9))
+        MAX_POSE_EXTENT, 'poses with |x| or |y| beyond this are absurd: skipped and counted',
+        'm', (1.0, 1e9))
     max_partners: int = parameter(
         50, 'a new viewpoint is measured against at most about this many earlier overlapping '
         'ones, shared among the earlier visits of its place (the nearest of each visit), chosen '
@@ -139,6 +139,39 @@ class MonitorSnapshot:
             raise ValueError('no keyframes yet: the snapshot holds no scan to place')
         return ScanSet.from_ranges(self.ranges, sensor_poses(self.poses, self.laser_offset),
                                    self.model)
+
+
+@dataclass(frozen=True)
+class SlamGraph:
+    """The SLAM back-end's pose graph as the monitor holds it, for a DCS retune.
+
+    Its vertices are the poses of the last trajectory that the constraints name, whether their
+    scans became keyframes or were folded into a viewpoint (or never came): the back-end's own
+    graph. The keyframes among them carry their scans; M(Phi) is measured on those, as the test
+    measures the map.
+    """
+
+    graph: PoseGraph  # vertices in stamp order, at the trajectory's poses, the first fixed
+    stamps: np.ndarray  # (N,) the vertices' stamps, seconds
+    scan_vertices: np.ndarray  # (S,) the vertex of each keyframe in the graph, increasing
+    ranges: np.ndarray  # (S, K) their scans
+    model: SensorModel
+    laser_offset: np.ndarray  # (3,)
+    keyframes_outside: int = 0  # keyframes that no constraint names (not in the graph)
+
+    def scans_at(self, poses: np.ndarray) -> ScanSet:
+        """The keyframes of the graph placed with the vertices at `poses`.
+
+        Parameters
+        ----------
+        poses: (N, 3) vertex poses (e.g. a DCS solution's).
+
+        Returns
+        -------
+        The ScanSet of the S keyframes, in stamp order.
+        """
+        return ScanSet.from_ranges(self.ranges, sensor_poses(poses[self.scan_vertices],
+                                                             self.laser_offset), self.model)
 
 
 def sensor_poses(keyframe_poses: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
@@ -422,10 +455,11 @@ class ConsistencyMonitor:
             (stamps in seconds, upper triangle of the information matrix).
 
         Raises ValueError (and keeps the previous set) on a wrong shape, non-finite values, an
-        edge from a stamp to itself, or an information matrix that is not symmetric positive
+        edge from a stamp to itself, a measurement beyond max_pose_extent, information entries
+        beyond MAX_INFORMATION, or an information matrix that is not symmetric positive
         definite.
         """
-        rows = check_constraint_rows(rows)
+        rows = check_constraint_rows(rows, self.settings.max_pose_extent)
         self._constraints = rows.copy()
 
     @property
@@ -435,33 +469,42 @@ class ConsistencyMonitor:
 
     # -- output ------------------------------------------------------------------------------
 
-    def pose_graph(self) -> PoseGraph | None:
-        """Keyframes (stamp order, first one fixed) and the constraints between them.
+    def slam_graph(self) -> SlamGraph | None:
+        """The back-end's pose graph: the constraints between poses of the last trajectory.
 
         Returns
         -------
-        The PoseGraph of the keyframes at their current poses in stamp order, the first fixed;
-        constraint rows whose stamps match no keyframe are left out. None when there are fewer
-        than two keyframes or no constraint connects two keyframes.
+        The SlamGraph whose vertices are the trajectory's poses that constraint rows name
+        (stamp order, the first fixed), folded scans' poses included, and whose edges are the
+        rows between two of them (rows naming a stamp the trajectory lacks are left out), with
+        the scans of the keyframes among the vertices. None when no row connects two poses of
+        the trajectory or fewer than two of the graph's vertices are keyframes.
         """
-        if self.keyframe_count < 2 or self._constraints.shape[0] == 0:
+        if self._keyframes is None or self._constraints.shape[0] == 0:
             return None
-        keyframes = self._keyframes
-        order = keyframes.order()
-        stamps = keyframes.stamps[order]
-        rows = self._constraints
-        tolerance = self.settings.stamp_tolerance
-        stamp_from, stamp_to, measurements, information = split_constraint_rows(rows)
-        edge_from, edge_to = (match_stamps(stamp_from, stamps, tolerance),
-                              match_stamps(stamp_to, stamps, tolerance))
-        known = (edge_from >= 0) & (edge_to >= 0) & (edge_from != edge_to)
-        if not known.any():
+        # the trajectory's stamps are sorted (update_trajectory keeps them so)
+        stamps, tolerance = self._path_stamps, self.settings.stamp_tolerance
+        stamp_from, stamp_to, measurements, information = split_constraint_rows(
+            self._constraints)
+        ends_from = match_sorted(stamp_from, stamps, tolerance)
+        ends_to = match_sorted(stamp_to, stamps, tolerance)
+        known = (ends_from >= 0) & (ends_to >= 0) & (ends_from != ends_to)
+        named = np.unique(np.concatenate([ends_from[known], ends_to[known]]))
+        slots = self._path_slots()[named]
+        scan_vertices = np.flatnonzero(slots >= 0)
+        if scan_vertices.size < 2:
             return None
-        fixed = np.zeros(stamps.size, dtype=bool)
+        vertex_of = np.full(stamps.size, -1, dtype=np.int64)
+        vertex_of[named] = np.arange(named.size)
+        fixed = np.zeros(named.size, dtype=bool)
         fixed[0] = True
-        return PoseGraph(poses=keyframes.poses[order], edge_from=edge_from[known],
-                         edge_to=edge_to[known], measurements=measurements[known],
-                         information=information[known], fixed=fixed)
+        graph = PoseGraph(poses=self._path_poses[named], edge_from=vertex_of[ends_from[known]],
+                          edge_to=vertex_of[ends_to[known]], measurements=measurements[known],
+                          information=information[known], fixed=fixed)
+        return SlamGraph(graph=graph, stamps=stamps[named], scan_vertices=scan_vertices,
+                         ranges=self._keyframes.ranges[slots[scan_vertices]], model=self._model,
+                         laser_offset=self._offset.copy(),
+                         keyframes_outside=self.keyframe_count - int(scan_vertices.size))
 
     def evaluate(self) -> MonitorSnapshot:
         """Run the test on the current map (when it changed since the last evaluation) and

@@ -8,6 +8,9 @@ the second stage's registration cache and both stages:
   registrations;
 - `evaluate()`: the first stage, the paper's test on the current map, as a MonitorSnapshot
   naming the estimate it holds (the one place the monitor is evaluated);
+- `slam_graph()` and `retune(graph, settings)`: the back-end's pose graph (every pose its
+  constraints name, folded scans' included) and the DCS Phi search on it, M(Phi) measured on
+  its keyframes as the test measures the map, the tuned map judged by both stages;
 - `explain(snapshot)`: the second stage on a snapshot, as a LiveVerdict that carries the
   snapshot, the Assessment and the snapshot's scans placed in the world. They are placed once,
   here, for the explanation, and whatever draws or reports the verdict (the node's markers,
@@ -16,8 +19,9 @@ the second stage's registration cache and both stages:
   partner budget bounds what an update costs, not the evidence of the verdict.
 
 Nothing is evaluated as a side effect of applying or reading. `apply`, `reset`, `recompute` and
-`evaluate` belong to one thread (the monitor is not thread-safe); `explain` may run on another,
-one explanation at a time (the registration cache is shared). A snapshot is immutable, so the
+`evaluate` and `slam_graph` belong to one thread (the monitor is not thread-safe); `explain` may
+run on another, one explanation at a time (the registration cache is shared), and `retune` on
+any (it reads only the graph it is given). A snapshot is immutable, so the
 thread that explains it never sees the map change under it.
 """
 from __future__ import annotations
@@ -29,13 +33,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from map_consistency_ros.core.backend import (TuningResult, TuningSettings, tune_dcs,
+                                              tuning_problem)
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, SensorModel
 from map_consistency_ros.core.live._feed import Applied, FeedSettings, MonitorFeed
 from map_consistency_ros.core.live._flagged_pairs import FlaggedPairs
 from map_consistency_ros.core.live._records import KeyframeEstimate, Record, Scan
 from map_consistency_ros.core.live.monitor import (ConsistencyMonitor, MonitorSettings,
-                                                   MonitorSnapshot, UpdateSummary)
+                                                   MonitorSnapshot, SlamGraph, UpdateSummary)
 from map_consistency_ros.core.verdict import (Assessment, ExplanationSettings, RegistrationCache,
                                               misaligned_endpoints)
 from map_consistency_ros.core.verdict import explain as explain_map
@@ -67,6 +73,15 @@ class LiveVerdict:
         The points, as core.verdict.misaligned_endpoints gives them.
         """
         return misaligned_endpoints(self.scans, self.assessment, max_pairs)
+
+
+@dataclass(frozen=True)
+class Retune:
+    """A DCS retune of the back-end's graph: the Phi search and the tuned map's verdict."""
+
+    graph: SlamGraph  # the graph tuned
+    tuning: TuningResult  # Phi*, M(Phi*), every vertex's optimized pose, the paper's test
+    assessment: Assessment  # both stages on the graph's keyframes at Phi*
 
 
 class LivePipeline:
@@ -166,6 +181,53 @@ class LivePipeline:
             return self.evaluate()
         counts = self.monitor.counts()
         return replace(snapshot, **counts, scan_counts=self.feed.scan_counts(counts))
+
+    def slam_graph(self) -> SlamGraph | None:
+        """The back-end's pose graph for a retune (ConsistencyMonitor.slam_graph).
+
+        Returns
+        -------
+        The graph of the constraints between poses of the last trajectory, with its
+        keyframes' scans; None when there is none to tune.
+        """
+        return self.monitor.slam_graph()
+
+    def tuning_problem(self, graph: SlamGraph) -> str | None:
+        """Why `graph` cannot be tuned honestly (core.backend.tuning_problem, poses and
+        measurements within the monitor's max_pose_extent).
+
+        Parameters
+        ----------
+        graph: a graph of `slam_graph()`.
+
+        Returns
+        -------
+        The reason, a sentence for the user; None when it can be tuned.
+        """
+        return tuning_problem(graph.graph, self.feed.monitor_settings.max_pose_extent)
+
+    def retune(self, graph: SlamGraph, settings: TuningSettings) -> Retune:
+        """The Phi search on `graph` (any thread), judged with the monitor's test parameters.
+
+        Parameters
+        ----------
+        graph: a graph of `slam_graph()`.
+        settings: the search's settings.
+
+        Returns
+        -------
+        The Retune: Phi*, the optimized poses of every vertex, and both stages' verdict on the
+        graph's keyframes at Phi*. ValueError when the graph cannot be tuned (`tuning_problem`
+        or a singular solve).
+        """
+        problem = self.tuning_problem(graph)
+        if problem:
+            raise ValueError(f'cannot tune this graph honestly: {problem}')
+        tuning = tune_dcs(graph.graph, graph.ranges, graph.model, graph.laser_offset, settings,
+                          self.feed.parameters, scan_vertices=graph.scan_vertices)
+        assessment = explain_map(graph.scans_at(tuning.poses), tuning.consistency,
+                                 self.explanation)
+        return Retune(graph=graph, tuning=tuning, assessment=assessment)
 
     def explain(self, snapshot: MonitorSnapshot) -> LiveVerdict:
         """The second stage on `snapshot` (any thread; one explanation at a time).

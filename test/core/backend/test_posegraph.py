@@ -1,4 +1,6 @@
 """PoseGraph: validation, the odometry / loop-closure split and the odometry chain."""
+import re
+
 import numpy as np
 import pytest
 
@@ -79,7 +81,7 @@ def test_graphs_that_cannot_be_tuned_honestly_are_named():
     assert tuning_problem(_graph()) is None
     sparse = _graph(edge_from=[0, 2], edge_to=[1, 3], measurements=np.zeros((2, 3)),
                     information=np.repeat(np.eye(3)[None], 2, axis=0))
-    assert '2 constraints for 4 keyframes' in tuning_problem(sparse)
+    assert '2 constraints for 4 poses' in tuning_problem(sparse)
     split = _graph(edge_from=[0, 1, 0], edge_to=[1, 0, 2], measurements=np.zeros((3, 3)),
                    information=np.repeat(np.eye(3)[None], 3, axis=0),
                    poses=np.zeros((4, 3)))
@@ -88,7 +90,35 @@ def test_graphs_that_cannot_be_tuned_honestly_are_named():
                    information=np.repeat(np.eye(3)[None], 3, axis=0))
     assert 'no loop closure' in tuning_problem(chain)
     huge = _graph(information=np.repeat(1e300 * np.eye(3)[None], 4, axis=0))
-    assert 'overflow the solver' in tuning_problem(huge)
+    assert 'edge 0 (pose 0 to 1) has information entries beyond' in tuning_problem(huge)
+    far = _graph(poses=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1e300, 0.0, 0.0],
+                                 [3.0, 0.0, 0.0]]))
+    assert 'pose 2 of 4 (1e+300, 0, 0) lies beyond 100000' in tuning_problem(far)
+    assert tuning_problem(far, extent=1e301) is None  # the node's own max_pose_extent
+    measured = np.zeros((4, 3))
+    measured[3] = [0.0, 1e300, 0.0]
+    assert 'edge 3 (pose 0 to 3) has a measurement beyond' in tuning_problem(
+        _graph(measurements=measured))
+
+
+@pytest.mark.parametrize('edge, change, reason', [
+    (1, ('measurement', (0, 2), np.inf), 'non-finite values'),
+    (2, ('information', (0, 0), np.nan), 'non-finite values'),
+    (1, ('measurement', (0, 0), 2e5), 'measurement beyond 100000'),
+    (0, ('information', (1, 1), 2e12), r'information entries beyond 1e\+12'),
+    (2, ('information', (2, 2), -1.0), 'information matrix that is not positive definite'),
+    (1, ('information', (0, 1), 5.0), 'information matrix that is not symmetric'),
+])
+def test_edge_problem_names_the_first_edge_no_solve_can_take(edge, change, reason):
+    from map_consistency_ros.core.backend import edge_problem
+    measurements, information = np.zeros((3, 3)), np.repeat(np.eye(3)[None], 3, axis=0)
+    assert edge_problem(measurements, information) is None
+    name, index, value = change
+    target = measurements[edge] if name == 'measurement' else information[edge]
+    target[index[1] if name == 'measurement' else index] = value
+    found = edge_problem(measurements, information)
+    assert found[0] == edge
+    assert re.search(reason, found[1])
 
 
 def test_constraint_rows_round_trip_and_refusals():
@@ -105,9 +135,10 @@ def test_constraint_rows_round_trip_and_refusals():
     np.testing.assert_array_equal(back_measurements, measurements)
     assert stamp_to.tolist() == [2.0, 5.0] and stamp_from.tolist() == [1.0, 2.0]
     for change, message in (((0, 1), 'to itself'), ((0, 5), 'not positive definite'),
-                            ((1, 7), r'beyond 1e\+12')):
+                            ((1, 7), r'row 1 has information entries beyond 1e\+12'),
+                            ((1, 3), 'row 1 has a measurement beyond 100000')):
         bad = rows.copy()
-        bad[change] = {1: 1.0, 5: -4.0, 7: 1e300}[change[1]]
+        bad[change] = {1: 1.0, 5: -4.0, 7: 1e300, 3: 1e300}[change[1]]
         with pytest.raises(ValueError, match=message):
             check_constraint_rows(bad)
     with pytest.raises(ValueError, match=r'shape \(E, 11\)'):

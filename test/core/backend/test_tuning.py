@@ -172,3 +172,39 @@ def test_profile_shape_finds_a_minimum_at_an_end_of_the_range_and_a_flat_profile
     failed = np.array([np.inf, 5.504, 5.505, 5.506, np.inf])
     assert profile_shape(grid, failed, settings) == (None, True)
     assert profile_shape(grid, np.full(5, np.inf), settings) == (None, False)
+
+
+def test_scans_of_some_vertices_are_measured_at_their_vertices_of_the_whole_solve(
+        intel_excerpt):
+    """A SLAM graph whose scans the test folded: every vertex is solved, M is measured on the
+    scans given, each placed at its own vertex."""
+    graph, ranges, model, offset = intel_excerpt
+    vertices = np.arange(0, graph.vertex_count, 3)
+    profile = InconsistencyProfile(graph, ranges[vertices], model, offset, SEARCH,
+                                   scan_vertices=vertices)
+    whole = InconsistencyProfile(graph, ranges, model, offset, SEARCH)
+    evaluation = profile.evaluate(1.0)
+    np.testing.assert_array_equal(evaluation.optimization.poses,
+                                  whole.evaluate(1.0).optimization.poses)
+    scans = profile.scans_at(evaluation.optimization.poses)
+    np.testing.assert_array_equal(
+        scans.sensor_poses, whole.scans_at(evaluation.optimization.poses).sensor_poses[vertices])
+    naive = pair_measures_naive(scans, candidate_pairs(scans.extents), keep_largest=1)
+    overlapping = naive.point_count > 0
+    assert evaluation.value == pytest.approx(
+        naive.distance_sum[overlapping].sum() / overlapping.sum(), rel=1e-9)
+    result = tune_dcs(graph, ranges[vertices], model, offset, SEARCH, TEST,
+                      scan_vertices=vertices)
+    assert result.poses.shape == (graph.vertex_count, 3)
+    assert result.consistency.scan_count == vertices.size
+
+
+@pytest.mark.parametrize('vertices, message', [
+    ([0, 1], '3 scans but 2 scan vertices'), ([0, 2, 1], 'increasing'), ([0, 1, 999], 'in 0..'),
+])
+def test_scan_vertices_must_name_one_vertex_per_scan_in_order(intel_excerpt, vertices, message):
+    graph, ranges, model, offset = intel_excerpt
+    with pytest.raises(ValueError, match=message):
+        InconsistencyProfile(graph, ranges[:3], model, offset, SEARCH, scan_vertices=vertices)
+    with pytest.raises(ValueError, match='3 scans for'):
+        InconsistencyProfile(graph, ranges[:3], model, offset, SEARCH)

@@ -458,26 +458,32 @@ def _edge_rows(stamps, poses, pairs):
     return np.array(rows)
 
 
-def test_constraints_validation_and_pose_graph(intel):
+def test_constraints_validation_and_slam_graph(intel):
     stamps, ranges, poses, model = _by_stamp(intel)
     monitor = ConsistencyMonitor()
-    assert monitor.pose_graph() is None
+    assert monitor.slam_graph() is None
     for stamp, scan in zip(stamps[:6], ranges[:6]):
         monitor.add_scan(stamp, scan, model)
     monitor.update_trajectory(stamps[:6], poses[:6])
-    assert monitor.pose_graph() is None  # no constraints yet
+    assert monitor.slam_graph() is None  # no constraints yet
     rows = _edge_rows(stamps, poses, [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (0, 5)])
     unknown = rows[:1].copy()
-    unknown[0, 0] = -50.0  # a stamp with no keyframe
+    unknown[0, 0] = -50.0  # a stamp with no pose
     monitor.set_constraints(np.concatenate([rows, unknown]))
-    graph = monitor.pose_graph()
+    slam = monitor.slam_graph()
+    graph = slam.graph
     assert graph.vertex_count == 6 and graph.edge_count == 6
     np.testing.assert_array_equal(graph.edge_from, [0, 1, 2, 3, 4, 0])
     np.testing.assert_array_equal(graph.edge_to, [1, 2, 3, 4, 5, 5])
     np.testing.assert_allclose(graph.information[0], np.diag([100.0, 100.0, 400.0]))
     np.testing.assert_allclose(graph.poses, poses[:6])
+    np.testing.assert_array_equal(slam.stamps, stamps[:6])
     assert graph.fixed.tolist() == [True] + [False] * 5
     assert graph.is_loop_closure.tolist() == [False] * 5 + [True]
+    keyframes = monitor.evaluate()
+    np.testing.assert_array_equal(slam.scan_vertices, np.arange(6))
+    np.testing.assert_array_equal(slam.ranges, keyframes.ranges)
+    assert slam.keyframes_outside == 0
 
     accepted = monitor.constraints.copy()
     self_loop = rows.copy()
@@ -596,3 +602,29 @@ def test_trajectories_that_do_not_extend_the_last_one_are_matched_again(intel):
         assert snapshot.stamps.size > 10
         expected = np.array([latest[float(stamp)] for stamp in snapshot.stamps])
         np.testing.assert_allclose(snapshot.poses, expected)
+
+
+def test_the_slam_graph_holds_every_pose_its_constraints_name_folded_or_not(intel):
+    """Scans folded into a viewpoint are no keyframes, but their poses stay vertices of the
+    back-end's graph; keyframes no constraint names are left out (and counted)."""
+    stamps, ranges, poses, model = _by_stamp(intel)
+    count = 40
+    monitor = ConsistencyMonitor()  # the default viewpoint spacing folds some of these scans
+    for stamp, scan in zip(stamps[:count], ranges[:count]):
+        monitor.add_scan(stamp, scan, model)
+    monitor.update_trajectory(stamps[:count], poses[:count])
+    keyframes = monitor.evaluate()
+    assert 0 < keyframes.folded_scans < count - 2
+    named = count - 5  # the last five poses: in the trajectory, but no constraint names them
+    monitor.set_constraints(_edge_rows(stamps, poses, [(k, k + 1) for k in range(named - 1)]
+                                       + [(0, named - 1)]))
+    slam = monitor.slam_graph()
+    np.testing.assert_array_equal(slam.stamps, stamps[:named])
+    np.testing.assert_allclose(slam.graph.poses, poses[:named])
+    assert slam.graph.edge_count == named
+    inside = np.isin(keyframes.stamps, stamps[:named])
+    np.testing.assert_array_equal(slam.stamps[slam.scan_vertices], keyframes.stamps[inside])
+    np.testing.assert_array_equal(slam.ranges, keyframes.ranges[inside])
+    assert slam.keyframes_outside == int((~inside).sum()) > 0
+    placed = slam.scans_at(slam.graph.poses)
+    np.testing.assert_allclose(placed.sensor_poses, keyframes.poses[inside])

@@ -8,10 +8,11 @@ import sys
 import numpy as np
 import pytest
 
+from map_consistency_ros.core.backend import TuningSettings, constraint_rows
 from map_consistency_ros.core.consistency import ConsistencyParameters, check_consistency
 from map_consistency_ros.core.geometry import ScanSet, se2
-from map_consistency_ros.core.live import (KeyframeEstimate, LivePipeline, MonitorSettings,
-                                           MonitorSnapshot, Scan)
+from map_consistency_ros.core.live import (Constraints, KeyframeEstimate, LivePipeline,
+                                           MonitorSettings, MonitorSnapshot, Scan)
 from map_consistency_ros.core.verdict import explain, misaligned_endpoints
 from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
 
@@ -172,3 +173,70 @@ def test_warm_up_loads_every_kernel_of_both_stages():
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
                           check=True)
     assert done.stdout.strip() == '1,1,1,1,1,1,1,1,1,1,1,1'
+
+
+def _retuned(intel, parameters):
+    """A retune of the excerpt streamed as a SLAM stack would: the dragged estimate (it took a
+    wrong loop closure), and its graph: an edge between consecutive scans, measured on the
+    poses as mapped, and the wrong loop closure."""
+    stamps, ranges, poses, dragged, model = intel
+    pipeline = LivePipeline(parameters)
+    for k, (stamp, scan) in enumerate(zip(stamps, ranges), 1):
+        pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model))
+        if k % 10 == 0:
+            pipeline.apply(KeyframeEstimate(stamps=stamps[:k], poses=dragged[:k]))
+    information = np.repeat(np.diag([100.0, 100.0, 400.0])[None], SCANS, axis=0)
+    loop = [10, SCANS - 10]
+    rows = np.concatenate([
+        constraint_rows(stamps[:-1], stamps[1:], se2.relative(poses[:-1], poses[1:]),
+                        information[1:]),
+        constraint_rows(stamps[loop[:1]], stamps[loop[1:]],
+                        se2.relative(dragged[loop[:1]], dragged[loop[1:]]), information[:1])])
+    assert pipeline.apply(Constraints(rows)).warnings == ()
+    graph = pipeline.slam_graph()
+    return pipeline, graph, pipeline.retune(graph, TuningSettings(grid_steps=5, tolerance=0.05))
+
+
+def test_a_retune_tunes_the_back_ends_graph_whatever_the_test_folds(intel):
+    """Folded scans stay vertices of the retune's graph: the same graph, Phi* and optimized
+    poses as with every scan a keyframe; M(Phi) measured on the keyframes."""
+    stamps, _, poses, _, _ = intel
+    folding, folded, folded_retune = _retuned(intel, ConsistencyParameters())
+    _, every, every_retune = _retuned(intel, EVERY_KEYFRAME)
+    keyframes = folding.evaluate()
+    assert keyframes.folded_scans > 0 and keyframes.keyframe_count < SCANS
+    for graph in (folded, every):
+        np.testing.assert_array_equal(graph.stamps, stamps)
+    np.testing.assert_array_equal(folded.graph.edge_to, every.graph.edge_to)
+    np.testing.assert_array_equal(folded.graph.poses, every.graph.poses)
+    np.testing.assert_array_equal(folded.stamps[folded.scan_vertices], keyframes.stamps)
+    assert folded_retune.tuning.phi == every_retune.tuning.phi
+    np.testing.assert_array_equal(folded_retune.tuning.poses, every_retune.tuning.poses)
+    assert folded_retune.tuning.consistency.scan_count == keyframes.keyframe_count
+    # the wrong loop closure is weighed out: the map as mapped, judged consistent
+    assert np.abs(folded_retune.tuning.poses[:, :2] - poses[:, :2]).max() < 0.01
+    assert folded_retune.assessment.consistent
+
+
+def test_a_retune_refuses_what_tune_refuses(intel):
+    """One number policy (core.backend.tuning_problem, check_constraint_rows): odometry alone is
+    no graph to tune, and a measurement beyond max_pose_extent no edge."""
+    stamps, ranges, poses, _, model = intel
+    pipeline = LivePipeline(EVERY_KEYFRAME)
+    for stamp, scan in zip(stamps, ranges):
+        pipeline.apply(Scan(stamp=float(stamp), ranges=scan, model=model))
+    pipeline.apply(KeyframeEstimate(stamps=stamps, poses=poses))
+    information = np.repeat(np.diag([100.0, 100.0, 400.0])[None], SCANS - 1, axis=0)
+    odometry = constraint_rows(stamps[:-1], stamps[1:], se2.relative(poses[:-1], poses[1:]),
+                               information)
+    assert pipeline.apply(Constraints(odometry)).warnings == ()
+    graph = pipeline.slam_graph()
+    assert 'no loop closure' in pipeline.tuning_problem(graph)
+    with pytest.raises(ValueError, match='cannot tune this graph honestly: no loop closure'):
+        pipeline.retune(graph, TuningSettings(grid_steps=3))
+    absurd = odometry.copy()
+    absurd[0, 2] = 1e300  # refused on arrival, the edges before kept
+    applied = pipeline.apply(Constraints(absurd))
+    assert applied.warnings == ('constraints ignored: constraint row 0 has a measurement '
+                                'beyond 100000 (m, rad)',)
+    np.testing.assert_array_equal(pipeline.monitor.constraints, odometry)
