@@ -14,8 +14,8 @@ cascaded test over windows of travel). Stage (2), here, for the flagged scans:
   `max_translation` at the robot and `max_rotation_deg`), significantly different from zero
   (chi-square with 3 degrees of freedom at `significance`), large enough to matter
   (`min_position_error` at the robot or `min_heading_error_deg`), MENDS the submap (after the
-  correction `mend_fraction` of its failed scans pass, or the submap passes the cascaded
-  test, and its mean Psi drops) and at least `min_agreeing` overlapping or adjacent submaps
+  correction its mean Psi drops, and `mend_fraction` of its failed scans pass, or the submap
+  passes the cascaded test, or its mean Psi falls to `mend_ratio` of what it was) and at least `min_agreeing` overlapping or adjacent submaps
   agree on it (the robot placed within `agreement_metres`, headings within `agreement_deg`).
   The correction is the localizer's error. Scans covered by such submaps form episodes,
   trimmed of their end scans that the estimate fitted at least as well as the correction.
@@ -243,6 +243,13 @@ def _submap_rows(stretches: list[tuple[int, int]], distance: np.ndarray, stamps:
 
     found = []
     for first, last in stretches:
+        # one submap ends with the stretch, as the first starts with it: an episode's ends
+        # are not blurred by scans the localizer placed well
+        back_travel = int(np.searchsorted(distance, distance[last] - settings.submap_metres,
+                                          side='left'))
+        back_time = int(np.searchsorted(stamps, stamps[last] - settings.submap_seconds,
+                                        side='left'))
+        found.append((max(back_travel, back_time, first), last + 1))
         row = first
         while True:
             end = reach(row, settings.submap_metres, settings.submap_seconds)
@@ -251,77 +258,132 @@ def _submap_rows(stretches: list[tuple[int, int]], distance: np.ndarray, stamps:
                 break
             row = max(min(reach(row, 0.5 * settings.submap_metres,
                                 0.5 * settings.submap_seconds), end - 1), row + 1)
-    return np.asarray(found, dtype=np.int64).reshape(-1, 2)
+    return np.unique(np.asarray(found, dtype=np.int64).reshape(-1, 2), axis=0)
 
 
 def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: ScanTests,
               windows: WindowTests, parameters: ConsistencyParameters,
               settings: LocalizationSettings) -> tuple[Submaps, np.ndarray]:
     """Register every submap onto the map and decide which corrections are mislocalizations;
-    also each scan's least Psi after an accepted correction (NaN elsewhere)."""
+    also each scan's least Psi after an accepted correction (NaN elsewhere).
+
+    Each submap is registered from the estimate; one that does not give a mislocalization
+    is registered again from the correction of the last submap before it that does
+    (forwards, then backwards from the one after it): a localizer's error persists, and a turn about a far place moves the
+    robot further than the gates reach from zero (10 degrees are 1.7 m at 10 m)."""
     after_psi = np.full(scans.scan_count, np.nan)
-    if rows.shape[0] == 0:
+    count = rows.shape[0]
+    if count == 0:
         return Submaps.empty(), after_psi
     registration = RegistrationSettings(gates=settings.gates, trim=settings.trim)
     surfaces = surface_points(scans.endpoints, scans.valid)
     found = register_onto_points(surface.points, surface.normals, surfaces, rows, registration)
-    transforms = found.world_transforms()
-    count = rows.shape[0]
-    position = np.zeros(count)
-    heading = np.abs(se2.wrap_angle(transforms[:, 2]))
-    for task, (q0, q1) in enumerate(rows.tolist()):
-        poses = scans.sensor_poses[q0:q1]
-        moved = se2.compose(transforms[task], poses)
-        position[task] = float(np.median(np.hypot(*(moved[:, :2] - poses[:, :2]).T)))
-    determined = found.determined.copy()
-    plausible = (position <= settings.max_translation) & (
-        np.degrees(heading) <= settings.max_rotation_deg)
-    mahalanobis = statistics.mahalanobis_squared(found.corrections, found.covariances)
-    significant = determined & (np.nan_to_num(mahalanobis, nan=0.0)
-                                > statistics.chi_square_3_quantile(settings.significance))
-    large = (position >= settings.min_position_error) | (
-        np.degrees(heading) >= settings.min_heading_error_deg)
-    worth = determined & plausible & significant & large
-    mended = np.zeros(count, dtype=bool)
-    psi_after = {}
-    if worth.any():
-        tasks = np.flatnonzero(worth)
-        members = [np.arange(*rows[task]) for task in tasks]
-        moved_poses = np.concatenate([se2.compose(transforms[task], scans.sensor_poses[m])
-                                      for task, m in zip(tasks, members)])
-        everything = np.concatenate(members)
-        retested = measure_and_judge(scans.take(everything).with_poses(moved_poses),
-                                     surface.reference, tests.scales[everything], parameters,
-                                     settings)
-        offset = 0
-        for task, member in zip(tasks, members):
-            part = slice(offset, offset + member.size)
-            offset += member.size
-            mended[task] = _mends(tests, member, retested.failed[part], retested.judged[part],
-                                  retested.psi[part], parameters, settings)
-            psi_after[task] = retested.psi[part]
-    accepted = _agreeing(worth & mended, rows, transforms, scans.sensor_poses, settings)
+    fields = {name: np.zeros(count, dtype=bool) for name in
+              ('determined', 'plausible', 'significant', 'large', 'mended')}
+    transforms, position, psi_after = found.world_transforms(), np.zeros(count), {}
+    for task in range(count):
+        _judge_submap(task, rows, transforms[task], found.corrections[task],
+                      found.covariances[task], bool(found.determined[task]), transforms[task],
+                      scans, surface, tests, parameters, settings, fields, position,
+                      psi_after)
+    good = lambda task: all(fields[name][task] for name in fields)  # noqa: E731
+    for order in (range(count), range(count - 1, -1, -1)):
+        seed = None
+        for task in order:
+            if good(task):
+                seed = (task, transforms[task])
+                continue
+            if seed is None:
+                continue
+            member = np.arange(*rows[task])
+            start = se2.compose(seed[1], scans.sensor_poses[member])
+            moved = scans.take(member).with_poses(start)
+            again = register_onto_points(surface.points, surface.normals,
+                                         surface_points(moved.endpoints, moved.valid),
+                                         [[0, member.size]], registration)
+            step = again.world_transforms()[0]
+            total = se2.compose(step, seed[1])
+            trial = {name: values.copy() for name, values in fields.items()}
+            trial_position, trial_psi = position.copy(), dict(psi_after)
+            _judge_submap(task, rows, total, _about(total, again.centroids[0]),
+                          again.covariances[0], bool(again.determined[0]), step, scans,
+                          surface, tests, parameters, settings, trial, trial_position,
+                          trial_psi)
+            if all(trial[name][task] for name in trial):
+                fields, position, psi_after = trial, trial_position, trial_psi
+                transforms[task] = total
+                seed = (task, total)
+    candidates = np.logical_and.reduce([fields[name] for name in fields])
+    accepted = _agreeing(candidates, rows, transforms, scans.sensor_poses, settings)
     for task in np.flatnonzero(accepted):
         member = np.arange(*rows[task])
         after_psi[member] = np.fmin(after_psi[member], psi_after[task])
     submaps = Submaps(rows=rows, transforms=transforms, position_error=position,
-                      heading_error=se2.wrap_angle(transforms[:, 2]), determined=determined,
-                      plausible=plausible, significant=significant, large=large,
-                      mended=mended, accepted=accepted)
+                      heading_error=se2.wrap_angle(transforms[:, 2]), accepted=accepted,
+                      **fields)
     return submaps, after_psi
+
+
+def _about(transform: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """A world transform as a correction about `centre` (Registrations' parametrisation)."""
+    cos, sin = math.cos(transform[2]), math.sin(transform[2])
+    cx, cy = centre
+    return np.array([transform[0] - cx + (cos * cx - sin * cy),
+                     transform[1] - cy + (sin * cx + cos * cy), transform[2]])
+
+
+def _judge_submap(task: int, rows: np.ndarray, transform: np.ndarray, correction: np.ndarray,
+                  covariance: np.ndarray, determined: bool, step: np.ndarray, scans: ScanSet,
+                  surface: MapSurface, tests: ScanTests, parameters: ConsistencyParameters,
+                  settings: LocalizationSettings, fields: dict, position: np.ndarray,
+                  psi_after: dict) -> None:
+    """The criteria of one submap's correction `transform` (the registration's own `step`
+    for plausibility), written into fields[name][task], position[task], psi_after[task]."""
+    member = np.arange(*rows[task])
+    poses = scans.sensor_poses[member]
+    moved = se2.compose(transform, poses)
+    position[task] = float(np.median(np.hypot(*(moved[:, :2] - poses[:, :2]).T)))
+    stepped = se2.compose(step, poses)
+    step_position = float(np.median(np.hypot(*(stepped[:, :2] - poses[:, :2]).T)))
+    heading = abs(math.degrees(float(se2.wrap_angle(transform[2]))))
+    fields['determined'][task] = determined
+    fields['plausible'][task] = (step_position <= settings.max_translation
+                                 and heading <= settings.max_rotation_deg)
+    mahalanobis = statistics.mahalanobis_squared(correction[None], covariance[None])[0]
+    fields['significant'][task] = determined and bool(
+        np.nan_to_num(mahalanobis, nan=0.0)
+        > statistics.chi_square_3_quantile(settings.significance))
+    fields['large'][task] = (position[task] >= settings.min_position_error
+                             or heading >= settings.min_heading_error_deg)
+    fields['mended'][task] = False
+    if not (determined and fields['plausible'][task] and fields['significant'][task]
+            and fields['large'][task]):
+        return
+    retested = measure_and_judge(scans.take(member).with_poses(moved), surface.reference,
+                                 tests.scales[member], parameters, settings)
+    fields['mended'][task] = _mends(tests, member, retested.failed, retested.judged,
+                                    retested.psi, parameters, settings)
+    psi_after[task] = retested.psi
 
 
 def _mends(tests: ScanTests, member: np.ndarray, failed_after: np.ndarray,
            judged_after: np.ndarray, psi_after: np.ndarray, parameters: ConsistencyParameters,
            settings: LocalizationSettings) -> bool:
-    """Whether a correction mends its submap: its failed scans pass (mend_fraction of them, or
-    the submap passes the cascaded test) and its scans fit the map better on average."""
+    """Whether a correction mends its submap: its scans fit the map better on average, and
+    its failed scans pass (mend_fraction of them, or the submap passes the cascaded test) or
+    its mean Psi falls to mend_ratio of what it was (what remains is the registration's
+    accuracy against the map's cells, which the test at a scale of half a cell still sees)."""
     failed_before = tests.failed[member]
     if not failed_before.any():
         return False
     both = tests.judged[member] & judged_after
-    if not both.any() or np.mean(psi_after[both]) >= np.mean(tests.psi[member][both]):
+    if not both.any():
         return False
+    before, after = np.mean(tests.psi[member][both]), np.mean(psi_after[both])
+    if after >= before:
+        return False
+    if before > 0.0 and after <= settings.mend_ratio * before:
+        return True
     critical = statistics.binomial_critical_count(int(judged_after.sum()),
                                                   parameters.failure_probability,
                                                   parameters.binomial_alpha)

@@ -4,7 +4,11 @@
   `trim_largest` largest depths as the pairwise test trims a pair's.
 - s_i: the local scale of eq. 10 over pairs of temporally adjacent LIVE scans (the local
   window of the live run at the localizer's poses, its pairs at most `scale_metres` of travel
-  apart: a run at the laser's rate or keyframed alike, and no revisit of a place counted): the sensor's noise and how well the
+  apart: a run at the laser's rate or keyframed alike, and no revisit of a place counted),
+  taken on each side apart (the largest bound over the pairs with earlier scans, and over
+  those with later ones) and the smaller side kept: sensor noise shows on both sides, a jump
+  of the estimate (the start or the end of an episode) on one side only, and must not
+  inflate the scales that should find it: the sensor's noise and how well the
   estimate holds together over a few metres, which a rigid error of the localizer (a wrong
   map -> odom) leaves untouched; never from the map, the thing under test. Floored at
   `resolution_scale` map cells: the map quantizes every distance to its cells.
@@ -26,8 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from map_consistency_ros.core.consistency import (ConsistencyParameters, local_pairs,
-                                                  local_scales, robust_sums, statistics)
+from map_consistency_ros.core.consistency import (NO_BOUND, ConsistencyParameters,
+                                                  add_local_bounds, local_pairs, robust_sums,
+                                                  scales_from_bounds, statistics)
 from map_consistency_ros.core.geometry import ScanSet, measure_pairs
 from map_consistency_ros.core.localization._grid_measure import (GridMeasures, GridReference,
                                                                  grid_measures)
@@ -73,8 +78,20 @@ def live_scales(scans: ScanSet, parameters: ConsistencyParameters, resolution: f
     distance = travel(scans.sensor_poses)
     pairs = pairs[distance[pairs[:, 1]] - distance[pairs[:, 0]] <= settings.scale_metres]
     measures = measure_pairs(scans, pairs, keep_largest=max(parameters.trim_largest, 1))
-    scales = local_scales(measures, scans.scan_count, parameters)
-    return np.maximum(scales, settings.resolution_scale * resolution)
+    distance_sum, count = robust_sums(measures, parameters.trim_largest)
+    # eq. 10 on each side apart: a pair (j, i) raises only i's bound from behind, only j's
+    # from ahead (a pair of one scan twice raises that scan alone)
+    sides = []
+    for column in (0, 1):
+        largest = np.full(scans.scan_count, NO_BOUND)
+        own = np.repeat(measures.pairs[:, column:column + 1], 2, axis=1)
+        add_local_bounds(largest, own, distance_sum, count, parameters)
+        sides.append(largest)
+    ahead, behind = sides
+    both = (ahead >= 0.0) & (behind >= 0.0)
+    largest = np.where(both, np.minimum(ahead, behind), np.maximum(ahead, behind))
+    return np.maximum(scales_from_bounds(largest, parameters),
+                      settings.resolution_scale * resolution)
 
 
 def judge_scans(measures: GridMeasures, scales: np.ndarray, parameters: ConsistencyParameters,

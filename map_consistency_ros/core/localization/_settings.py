@@ -58,6 +58,9 @@ class LocalizationSettings(Settings):
     mend_fraction: float = parameter(
         0.5, "share of a submap's failed scans that must pass after its correction (or the "
         'submap passes the cascaded test)', '', (0.0, 1.0))
+    mend_ratio: float = parameter(
+        0.1, "a correction also mends a submap when its mean Psi falls to this share of what "
+        'it was', '', (0.0, 1.0))
     min_agreeing: int = parameter(
         2, 'overlapping or adjacent submaps whose corrections must agree on a mislocalization',
         'submaps', (1, 1000))
