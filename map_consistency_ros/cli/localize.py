@@ -30,7 +30,7 @@ from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.localization import (LocalizationResult, LocalizationSettings,
                                                    MapSurface, OccupancyGrid, localize,
-                                                   prepare_reference)
+                                                   prepare_reference, ray_cast_grid)
 from map_consistency_ros.core.verdict import plain, to_json
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
@@ -84,7 +84,6 @@ def load_reference(args: argparse.Namespace) -> OccupancyGrid:
     if path.suffix.lower() in MAP_SUFFIXES:
         from map_consistency_ros.io.occupancy_map import read_occupancy_map
         return read_occupancy_map(path).grid
-    from map_consistency_ros.evaluation.localization_data import ray_cast_grid
     if path.suffix.lower() == '.g2o':
         from map_consistency_ros.io.g2o import read_g2o
         content = read_g2o(path)

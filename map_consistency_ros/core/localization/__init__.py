@@ -14,6 +14,8 @@ from map_consistency_ros.core.localization._grid_measure import (GridMeasures,
                                                                  grid_point_distances,
                                                                  prepare_reference)
 from map_consistency_ros.core.localization._map_surface import map_surface
+from map_consistency_ros.core.localization._ray_cast import (OCCUPIED_RATIO, beams_crossing,
+                                                             ray_cast_grid)
 from map_consistency_ros.core.localization._pipeline import (LOCALIZED, MISLOCALIZED,
                                                              NOTHING_TO_JUDGE, Episode,
                                                              LocalizationResult, MapChange,
@@ -28,7 +30,7 @@ __all__ = [
     'OccupancyGrid', 'trinary_cells', 'UNKNOWN', 'FREE', 'OCCUPIED', 'CELL_VALUES',
     'GridReference', 'prepare_reference', 'GridMeasures', 'grid_measures',
     'GridPointDistances', 'grid_point_distances',
-    'map_surface', 'LocalizationSettings',
+    'map_surface', 'LocalizationSettings', 'ray_cast_grid', 'beams_crossing', 'OCCUPIED_RATIO',
     'ScanTests', 'WindowTests', 'live_scales', 'judge_scans', 'measure_and_judge', 'travel',
     'window_starts', 'cascaded_test',
     'MapSurface', 'Episode', 'MapChange', 'Submaps', 'LocalizationResult', 'localize',
