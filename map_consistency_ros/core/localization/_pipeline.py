@@ -41,10 +41,14 @@ from map_consistency_ros.core.localization._scan_test import (ScanTests, WindowT
                                                               cascaded_test, live_scales,
                                                               measure_and_judge, travel,
                                                               window_starts)
+from map_consistency_ros.core.localization._search import DistanceField, coarse_correction
 from map_consistency_ros.core.localization._settings import LocalizationSettings
 from map_consistency_ros.core.verdict import (RegistrationSettings, place_labels,
                                               register_onto_points, surface_points)
 from map_consistency_ros.core.verdict._frozen import FrozenEstimate, frozen_estimates
+
+# end points of a submap scored by the coarse search at most (a regular subsample)
+SEARCH_POINTS = 300
 
 LOCALIZED = 'localized'
 MISLOCALIZED = 'mislocalized'
@@ -151,6 +155,7 @@ class MapSurface:
     reference: GridReference
     points: np.ndarray
     normals: np.ndarray
+    field: DistanceField
 
     @classmethod
     def of(cls, reference: GridReference) -> MapSurface:
@@ -165,7 +170,8 @@ class MapSurface:
         The MapSurface.
         """
         points, normals = map_surface(reference.grid)
-        return cls(reference=reference, points=points, normals=normals)
+        return cls(reference=reference, points=points, normals=normals,
+                   field=DistanceField.of(reference.grid))
 
 
 def localize(scans: ScanSet, stamps: np.ndarray, surface: MapSurface,
@@ -267,8 +273,9 @@ def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: Scan
     """Register every submap onto the map and decide which corrections are mislocalizations;
     also each scan's least Psi after an accepted correction (NaN elsewhere).
 
-    Each submap is registered from the estimate; one that does not give a mislocalization
-    is registered again from the correction of the last submap before it that does
+    Each submap is registered from the estimate; one with failed scans that does not give a
+    mislocalization is registered again from the best correction of a coarse search
+    (_search.py), then from the correction of the last submap before it that gives one
     (forwards, then backwards from the one after it): a localizer's error persists, and a turn about a far place moves the
     robot further than the gates reach from zero (10 degrees are 1.7 m at 10 m)."""
     after_psi = np.full(scans.scan_count, np.nan)
@@ -287,32 +294,50 @@ def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: Scan
                       scans, surface, tests, parameters, settings, fields, position,
                       psi_after)
     good = lambda task: all(fields[name][task] for name in fields)  # noqa: E731
+
+    def again(task: int, seed: np.ndarray) -> bool:
+        """Register submap `task` from `seed`; keep the result when it is a mislocalization."""
+        nonlocal fields, position, psi_after
+        member = np.arange(*rows[task])
+        moved = scans.take(member).with_poses(se2.compose(seed, scans.sensor_poses[member]))
+        found = register_onto_points(surface.points, surface.normals,
+                                     surface_points(moved.endpoints, moved.valid),
+                                     [[0, member.size]], registration)
+        step = found.world_transforms()[0]
+        total = se2.compose(step, seed)
+        trial = {name: values.copy() for name, values in fields.items()}
+        trial_position, trial_psi = position.copy(), dict(psi_after)
+        _judge_submap(task, rows, total, _about(total, found.centroids[0]),
+                      found.covariances[0], bool(found.determined[0]), step, scans, surface,
+                      tests, parameters, settings, trial, trial_position, trial_psi)
+        if not all(trial[name][task] for name in trial):
+            return False
+        fields, position, psi_after = trial, trial_position, trial_psi
+        transforms[task] = total
+        return True
+
+    # from the coarse search where the estimate's own start did not bring the submap home
+    for task in range(count):
+        if good(task) or not tests.failed[rows[task, 0]:rows[task, 1]].any():
+            continue
+        member = np.arange(*rows[task])
+        points = scans.endpoints[member][scans.valid[member]]
+        points = points[::max(1, points.shape[0] // SEARCH_POINTS)]
+        centre = np.median(scans.sensor_poses[member, :2], axis=0)
+        seed, cost, zero_cost = coarse_correction(
+            surface.field, points, centre, settings.max_translation,
+            math.radians(settings.max_rotation_deg), settings.search_step,
+            math.radians(settings.search_step_deg))
+        if cost < zero_cost:
+            again(task, seed)
+    # from the correction of a neighbour: the localizer's error persists
     for order in (range(count), range(count - 1, -1, -1)):
         seed = None
         for task in order:
             if good(task):
-                seed = (task, transforms[task])
-                continue
-            if seed is None:
-                continue
-            member = np.arange(*rows[task])
-            start = se2.compose(seed[1], scans.sensor_poses[member])
-            moved = scans.take(member).with_poses(start)
-            again = register_onto_points(surface.points, surface.normals,
-                                         surface_points(moved.endpoints, moved.valid),
-                                         [[0, member.size]], registration)
-            step = again.world_transforms()[0]
-            total = se2.compose(step, seed[1])
-            trial = {name: values.copy() for name, values in fields.items()}
-            trial_position, trial_psi = position.copy(), dict(psi_after)
-            _judge_submap(task, rows, total, _about(total, again.centroids[0]),
-                          again.covariances[0], bool(again.determined[0]), step, scans,
-                          surface, tests, parameters, settings, trial, trial_position,
-                          trial_psi)
-            if all(trial[name][task] for name in trial):
-                fields, position, psi_after = trial, trial_position, trial_psi
-                transforms[task] = total
-                seed = (task, total)
+                seed = transforms[task]
+            elif seed is not None and again(task, seed):
+                seed = transforms[task]
     candidates = np.logical_and.reduce([fields[name] for name in fields])
     accepted = _agreeing(candidates, rows, transforms, scans.sensor_poses, settings)
     for task in np.flatnonzero(accepted):

@@ -42,6 +42,11 @@ class LocalizationSettings(Settings):
         0.1, "share of the largest residuals each registration step leaves out (mapping "
         "mode's 0.3 drops the walls across a sideways error against a whole map)", '',
         (0.0, 0.89))
+    search_step: float = parameter(
+        0.15, "spacing of the shifts of the coarse search that seeds a registration the "
+        "estimate's own start does not bring home", 'm', (0.01, 10.0))
+    search_step_deg: float = parameter(
+        2.5, 'spacing of the rotations of the coarse search', 'deg', (0.1, 90.0))
     max_translation: float = parameter(
         1.5, 'largest correction at the robot trusted as a mislocalization', 'm', (0.01, 100.0))
     max_rotation_deg: float = parameter(
