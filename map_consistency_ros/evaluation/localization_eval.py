@@ -93,6 +93,8 @@ def evaluate_run(folder: Path, label: dict, surfaces: dict) -> dict:
         row['errors'].append((round(found.position_error, 3), round(true_position, 3),
                               round(heading, 2), round(true_heading, 2), found.first,
                               truth['first'], found.last, truth['last']))
+    if frozen_run:
+        row['error_ok'] = '-'  # a frozen estimate has no one error: it grows as the robot goes
     for found in result.episodes:
         if not any(found.first <= t['last'] and found.last >= t['first']
                    for t in label['episodes']):
@@ -139,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             row = evaluate_run(folder, label, surfaces)
             print(f"{dataset:8} {row['run']:16} {row['outcome']:14} {row['labelled']:3} "
                   f"{row['found'] + row['frozen_found']:3} {row['recalled']:3} "
-                  f"{row['error_ok']:3} {row['start_ok']:3} {row['false_alarms']:3} "
+                  f"{row['error_ok']:>3} {row['start_ok']:3} {row['false_alarms']:3} "
                   f"{row['changes']:4} {row.get('edits', '-'):>5} {row['seconds']:5.1f}  "
                   f"{row['errors']}", flush=True)
     return 0

@@ -170,3 +170,67 @@ def test_stamps_must_match_the_scans(truth, surface):
     poses, ranges, stamps = truth
     with pytest.raises(ValueError):
         localize(ScanSet.from_ranges(ranges, poses, MODEL), stamps[:-1], surface)
+
+
+def test_coarse_search_finds_a_kidnapping_beyond_the_gates(truth):
+    from map_consistency_ros.core.localization._search import DistanceField, coarse_correction
+    poses, ranges, _ = truth
+    error = np.array([0.0, 0.0, math.radians(10.0)])
+    pivot = poses[20]
+    # 10 degrees about the robot and 1 m to its left
+    wrong = se2.compose(se2.compose(pivot, se2.compose(np.array([0.0, 1.0, 0.0]), error)),
+                        se2.relative(pivot, poses[20:30]))
+    scans = ScanSet.from_ranges(ranges[20:30], wrong, MODEL)
+    points = scans.endpoints[scans.valid][::10]
+    seed, cost, zero = coarse_correction(DistanceField.of(room()), points,
+                                         np.median(wrong[:, :2], axis=0), 1.5,
+                                         math.radians(15.0), 0.15, math.radians(2.5))
+    assert cost < zero
+    moved = se2.compose(seed, wrong)
+    assert np.median(np.hypot(*(moved[:, :2] - poses[20:30, :2]).T)) < 0.3
+    assert abs(math.degrees(se2.wrap_angle(moved[0, 2] - poses[20, 2]))) <= 2.5
+
+
+def test_a_jump_of_the_estimate_does_not_inflate_the_scales_beside_it(truth, surface):
+    from map_consistency_ros.core.localization import live_scales
+    poses, ranges, _ = truth
+    estimate = poses.copy()
+    estimate[40:] = se2.compose(np.array([0.0, 0.5, 0.0]), poses[40:])
+    parameters, settings = ConsistencyParameters(), LocalizationSettings()
+    scales = live_scales(ScanSet.from_ranges(ranges, estimate, MODEL), parameters,
+                         RESOLUTION, settings)
+    calm = live_scales(ScanSet.from_ranges(ranges, poses, MODEL), parameters, RESOLUTION,
+                       settings)
+    assert np.allclose(scales, calm, atol=0.01)
+    assert scales.min() >= settings.resolution_scale * RESOLUTION
+
+
+@pytest.fixture(scope='module')
+def intel_excerpt(shared_data):
+    """The first 150 scans of the corrected Intel log and the map ray-cast from them."""
+    from map_consistency_ros.core.localization import ray_cast_grid
+    from map_consistency_ros.io.carmen import read_carmen_log, sensor_model
+    log = read_carmen_log(shared_data / 'intel' / 'intel.gfs.log')
+    scans = ScanSet.from_ranges(log.ranges[:150], log.laser_poses[:150], sensor_model(log))
+    grid, _, _ = ray_cast_grid(scans, resolution=0.05)
+    return scans, log.timestamps[:150], MapSurface.of(prepare_reference(grid))
+
+
+def test_a_real_excerpt_at_its_own_poses_is_localized(intel_excerpt):
+    scans, stamps, surface = intel_excerpt
+    result = localize(scans, stamps, surface)
+    assert result.outcome == 'localized' and not result.mislocalized.any()
+
+
+def test_a_real_excerpt_kidnapped_by_0_3_m_is_found(intel_excerpt):
+    scans, stamps, surface = intel_excerpt
+    poses = scans.sensor_poses.copy()
+    x, y, theta = poses[60]
+    shift = np.array([-0.3 * math.sin(theta), 0.3 * math.cos(theta), 0.0])
+    poses[60:120, :2] += shift[:2]
+    result = localize(scans.with_poses(poses), stamps, surface)
+    assert result.outcome == 'mislocalized'
+    overlapping = [e for e in result.episodes if e.first <= 119 and e.last >= 60]
+    assert overlapping and abs(overlapping[0].first - 60) <= 10
+    assert overlapping[0].position_error == pytest.approx(0.3, rel=0.5)
+    assert not any(e.last < 60 or e.first > 119 for e in result.episodes)
