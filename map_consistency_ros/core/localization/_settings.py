@@ -80,7 +80,8 @@ class LocalizationSettings(Settings):
     change_cell: float = parameter(
         0.5, 'changed points closer than this form one place', 'm', (0.01, 100.0))
     min_change_points: int = parameter(
-        5, 'deep points a changed place must hold', 'points', (1, 100_000))
+        50, 'deep points a changed place must hold, over the scans of its stretch (a person '
+        'passing one scan leaves a few tens)', 'points', (1, 100_000))
     min_frozen_changes: int = parameter(
         3, 'changes of scene at one estimated pose that make a frozen estimate', '',
         (1, 100_000))
