@@ -21,7 +21,8 @@ cascaded test over windows of travel). Stage (2), here, for the flagged scans:
   trimmed of their end scans that the estimate fitted at least as well as the correction.
 - **a change** everywhere else a scan was flagged: the map is out of date there. Its places:
   end points and map obstacles deeper than `change_depth` scales s_i, grouped within
-  `change_cell` (place_labels of mapping mode), their centroids.
+  `change_cell` (place_labels of mapping mode), split into tiles of `max_change_extent`,
+  their centroids.
 - **a frozen estimate**: core/verdict/_frozen.py's rule on the live run (consecutive scans at
   one estimated pose whose scans changed `min_frozen_changes` times); no folding by pose.
 """
@@ -547,6 +548,11 @@ def _changes(scans: ScanSet, reference: GridReference, tests: ScanTests,
             continue
         owners = np.concatenate(owners)
         labels = place_labels(points, settings.change_cell)
+        # a place spans at most max_change_extent: a long chain of deep points (a corridor
+        # seen out of date along its length) is split into tiles, each at its own centroid
+        tiles = np.floor(points / settings.max_change_extent).astype(np.int64)
+        _, labels = np.unique(np.column_stack([labels, tiles]), axis=0, return_inverse=True)
+        labels = labels.reshape(-1)
         for label in np.unique(labels):
             mine = labels == label
             if np.count_nonzero(mine) < settings.min_change_points:

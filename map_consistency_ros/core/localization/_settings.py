@@ -79,6 +79,9 @@ class LocalizationSettings(Settings):
         (0.0, 100.0))
     change_cell: float = parameter(
         0.5, 'changed points closer than this form one place', 'm', (0.01, 100.0))
+    max_change_extent: float = parameter(
+        3.0, 'a changed place spans at most this (larger connected deep areas are split into '
+        'tiles of this size, each reported at its centroid)', 'm', (0.1, 1000.0))
     min_change_points: int = parameter(
         50, 'deep points a changed place must hold, over the scans of its stretch (a person '
         'passing one scan leaves a few tens)', 'points', (1, 100_000))
