@@ -189,6 +189,7 @@ def report(result: LocalizationResult, stamps: np.ndarray, parameters: Consisten
         'scans': int(result.tests.judged.size), 'judged_scans': int(result.tests.judged.sum()),
         'failed_scans': int(result.tests.failed.sum()),
         'flagged_scans': int(result.windows.flagged.sum()),
+        'minor_scans': int(result.minor.sum()),
         'episodes': [{'first': e.first, 'last': e.last,
                       'start_s': float(stamps[e.first]), 'end_s': float(stamps[e.last]),
                       'position_error_m': e.position_error,

@@ -13,7 +13,8 @@ its labels:
 - **false alarms**: found episodes that overlap no labelled episode, and runs the labels
   call localized that come out mislocalized (the corrected run, 0.1 m, the outdated map);
 - **changes** (outdated map): the labelled edits with a reported change within 1 m of their
-  box.
+  box;
+- **minor**: flagged scans a correction below the tolerance explains.
 
 Run `python -m map_consistency_ros.evaluation.localization_eval FOLDER [--datasets intel
 fr079]`; prints one row per run and writes nothing.
@@ -67,7 +68,8 @@ def evaluate_run(folder: Path, label: dict, surfaces: dict) -> dict:
     row = {'run': label['run'], 'outcome': result.outcome, 'labelled': len(label['episodes']),
            'found': len(result.episodes), 'frozen_found': len(result.frozen), 'recalled': 0,
            'error_ok': 0, 'start_ok': 0, 'false_alarms': 0, 'seconds': seconds,
-           'errors': [], 'changes': len(result.changes)}
+           'errors': [], 'changes': len(result.changes),
+           'minor': int(result.minor.sum())}
     for truth in label['episodes']:
         span = range(truth['first'], truth['last'] + 1)
         if frozen_run:
@@ -131,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--datasets', nargs='+', default=['intel', 'fr079'])
     args = parser.parse_args(argv)
     print(f"{'dataset':8} {'run':16} {'outcome':14} {'lab':>3} {'fnd':>3} {'rec':>3} "
-          f"{'err':>3} {'sta':>3} {'FA':>3} {'chg':>4} {'edits':>5} {'s':>5}  "
+          f"{'err':>3} {'sta':>3} {'FA':>3} {'chg':>4} {'minor':>5} {'edits':>5} {'s':>5}  "
           'found (m, deg) vs label, first/last vs label')
     for dataset in args.datasets:
         folder = args.folder / dataset
@@ -142,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{dataset:8} {row['run']:16} {row['outcome']:14} {row['labelled']:3} "
                   f"{row['found'] + row['frozen_found']:3} {row['recalled']:3} "
                   f"{row['error_ok']:>3} {row['start_ok']:3} {row['false_alarms']:3} "
-                  f"{row['changes']:4} {row.get('edits', '-'):>5} {row['seconds']:5.1f}  "
+                  f"{row['changes']:4} {row['minor']:5} {row.get('edits', '-'):>5} {row['seconds']:5.1f}  "
                   f"{row['errors']}", flush=True)
     return 0
 

@@ -19,6 +19,9 @@ cascaded test over windows of travel). Stage (2), here, for the flagged scans:
   agree on it (the robot placed within `agreement_metres`, headings within `agreement_deg`).
   The correction is the localizer's error. Scans covered by such submaps form episodes,
   trimmed of their end scans that the estimate fitted at least as well as the correction.
+- **minor**: a correction that mends its submap (and is determined, plausible, significant)
+  but moves the robot less than the tolerance: the localizer is a little off, the map is
+  not out of date; neither an episode nor a change.
 - **a change** everywhere else a scan was flagged: the map is out of date there. Its places:
   end points and map obstacles deeper than `change_depth` scales s_i, grouped within
   `change_cell` (place_labels of mapping mode), split into tiles of `max_change_extent`,
@@ -103,6 +106,13 @@ class Submaps:
     mended: np.ndarray
     accepted: np.ndarray
 
+    @property
+    def minor(self) -> np.ndarray:
+        """(T,) corrections that mend their submaps but move the robot less than the
+        tolerance: a small error of the localizer, neither a mislocalization nor a change."""
+        return (self.determined & self.plausible & self.significant & self.mended
+                & ~self.large)
+
     @classmethod
     def empty(cls) -> Submaps:
         """No submaps.
@@ -129,6 +139,7 @@ class LocalizationResult:
     changes: tuple[MapChange, ...]
     frozen: tuple[FrozenEstimate, ...]
     mislocalized: np.ndarray  # (N,) bool: scans inside an episode
+    minor: np.ndarray  # (N,) bool: flagged scans a correction below the tolerance explains
     errors: np.ndarray = field(repr=False)  # (N, 2) position m / heading rad, NaN elsewhere
 
     @property
@@ -220,12 +231,16 @@ def localize(scans: ScanSet, stamps: np.ndarray, surface: MapSurface,
     mislocalized, errors, episodes = _episodes(scans, submaps, tests, after_psi)
     episodes = _joined(scans, surface, tests, episodes, mislocalized, errors, parameters,
                        settings)
-    unexplained = candidates & ~mislocalized
+    minor = np.zeros(scans.scan_count, dtype=bool)
+    for task in np.flatnonzero(submaps.minor):
+        minor[slice(*submaps.rows[task])] = True
+    unexplained = candidates & ~mislocalized & ~minor
     changes = _changes(scans, reference, tests, _stretches(np.flatnonzero(unexplained), starts),
                        unexplained, settings)
     return LocalizationResult(tests=tests, windows=windows, submaps=submaps,
                               episodes=tuple(episodes), changes=tuple(changes), frozen=frozen,
-                              mislocalized=mislocalized, errors=errors)
+                              mislocalized=mislocalized, minor=minor & candidates,
+                              errors=errors)
 
 
 def _stretches(rows: np.ndarray, starts: np.ndarray) -> list[tuple[int, int]]:
@@ -319,7 +334,8 @@ def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: Scan
 
     # from the coarse search where the estimate's own start did not bring the submap home
     for task in range(count):
-        if good(task) or not tests.failed[rows[task, 0]:rows[task, 1]].any():
+        if good(task) or _minor(fields, task) or not tests.failed[
+                rows[task, 0]:rows[task, 1]].any():
             continue
         member = np.arange(*rows[task])
         points = scans.endpoints[member][scans.valid[member]]
@@ -348,6 +364,14 @@ def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: Scan
                       heading_error=se2.wrap_angle(transforms[:, 2]), accepted=accepted,
                       **fields)
     return submaps, after_psi
+
+
+def _minor(fields: dict, task: int) -> bool:
+    """A correction that mends its submap but is too small to matter: the localizer is off
+    by less than the tolerance, and the map is not out of date there."""
+    return bool(fields['determined'][task] and fields['plausible'][task]
+                and fields['significant'][task] and fields['mended'][task]
+                and not fields['large'][task])
 
 
 def _about(transform: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -382,8 +406,7 @@ def _judge_submap(task: int, rows: np.ndarray, transform: np.ndarray, correction
     fields['large'][task] = (position[task] >= settings.min_position_error
                              or heading >= settings.min_heading_error_deg)
     fields['mended'][task] = False
-    if not (determined and fields['plausible'][task] and fields['significant'][task]
-            and fields['large'][task]):
+    if not (determined and fields['plausible'][task] and fields['significant'][task]):
         return
     retested = measure_and_judge(scans.take(member).with_poses(moved), surface.reference,
                                  tests.scales[member], parameters, settings)
