@@ -79,7 +79,8 @@ def evaluate_run(folder: Path, label: dict, surfaces: dict) -> dict:
                 row['recalled'] += 1
                 row['start_ok'] += abs(int(hits[0].scans[0]) - truth['first']) <= START_TOLERANCE
             continue
-        hits = [e for e in result.episodes if e.first <= truth['last'] and e.last >= truth['first']]
+        hits = [e for e in result.episodes
+                if e.first <= truth['last'] and e.last >= truth['first']]
         if not hits:
             continue
         row['recalled'] += 1
@@ -144,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{dataset:8} {row['run']:16} {row['outcome']:14} {row['labelled']:3} "
                   f"{row['found'] + row['frozen_found']:3} {row['recalled']:3} "
                   f"{row['error_ok']:>3} {row['start_ok']:3} {row['false_alarms']:3} "
-                  f"{row['changes']:4} {row['minor']:5} {row.get('edits', '-'):>5} {row['seconds']:5.1f}  "
+                  f"{row['changes']:4} {row['minor']:5} {row.get('edits', '-'):>5} "
+                  f"{row['seconds']:5.1f}  "
                   f"{row['errors']}", flush=True)
     return 0
 

@@ -9,15 +9,16 @@ cascaded test over windows of travel). Stage (2), here, for the flagged scans:
   starting half a submap after the previous (so that neighbours overlap).
 - **registration** of each submap's end points onto the map's occupied cell centres
   (map_surface, register_onto_points: the ICP of mapping mode with gates wide enough for a
-  kidnapping).
+  kidnapping), seeded by a coarse search (_search.py) or a neighbour's correction where the
+  estimate's own start does not bring the submap home.
 - **a mislocalization** where the correction is determined, plausible (within
   `max_translation` at the robot and `max_rotation_deg`), significantly different from zero
   (chi-square with 3 degrees of freedom at `significance`), large enough to matter
   (`min_position_error` at the robot or `min_heading_error_deg`), MENDS the submap (after the
   correction its mean Psi drops, and `mend_fraction` of its failed scans pass, or the submap
-  passes the cascaded test, or its mean Psi falls to `mend_ratio` of what it was) and at least `min_agreeing` overlapping or adjacent submaps
-  agree on it (the robot placed within `agreement_metres`, headings within `agreement_deg`).
-  The correction is the localizer's error. Scans covered by such submaps form episodes,
+  passes the cascaded test, or its mean Psi falls to `mend_ratio` of what it was) and at
+  least `min_agreeing` overlapping or adjacent submaps agree on it (the robot placed within
+  `agreement_metres`, headings within `agreement_deg`). The correction is the localizer's error. Scans covered by such submaps form episodes,
   trimmed of their end scans that the estimate fitted at least as well as the correction.
 - **minor**: a correction that mends its submap (and is determined, plausible, significant)
   but moves the robot less than the tolerance: the localizer is a little off, the map is
@@ -292,8 +293,9 @@ def _register(scans: ScanSet, surface: MapSurface, rows: np.ndarray, tests: Scan
     Each submap is registered from the estimate; one with failed scans that does not give a
     mislocalization is registered again from the best correction of a coarse search
     (_search.py), then from the correction of the last submap before it that gives one
-    (forwards, then backwards from the one after it): a localizer's error persists, and a turn about a far place moves the
-    robot further than the gates reach from zero (10 degrees are 1.7 m at 10 m)."""
+    (forwards, then backwards from the one after it): a localizer's error persists, and a
+    turn about a far place moves the robot further than the gates reach from zero (10
+    degrees are 1.7 m at 10 m)."""
     after_psi = np.full(scans.scan_count, np.nan)
     count = rows.shape[0]
     if count == 0:

@@ -19,7 +19,8 @@ from map_consistency_ros.core.verdict import register_onto_points, surface_point
 
 RESOLUTION = 0.05
 MODEL = SensorModel(-math.pi, 2.0 * math.pi / 360, 8.0)
-BOXES = [(5.0, 2.0, 5.6, 2.6), (9.0, 7.0, 9.8, 7.5), (13.0, 3.0, 13.4, 3.8), (16.0, 6.5, 16.8, 7.1)]
+BOXES = [(5.0, 2.0, 5.6, 2.6), (9.0, 7.0, 9.8, 7.5), (13.0, 3.0, 13.4, 3.8),
+         (16.0, 6.5, 16.8, 7.1)]
 
 
 def room(boxes=BOXES) -> OccupancyGrid:
