@@ -18,7 +18,8 @@ cascaded test over windows of travel). Stage (2), here, for the flagged scans:
   correction its mean Psi drops, and `mend_fraction` of its failed scans pass, or the submap
   passes the cascaded test, or its mean Psi falls to `mend_ratio` of what it was) and at
   least `min_agreeing` overlapping or adjacent submaps agree on it (the robot placed within
-  `agreement_metres`, headings within `agreement_deg`). The correction is the localizer's error. Scans covered by such submaps form episodes,
+  `agreement_metres`, headings within `agreement_deg`). The correction is the localizer's
+  error. Scans covered by such submaps form episodes,
   trimmed of their end scans that the estimate fitted at least as well as the correction.
 - **minor**: a correction that mends its submap (and is determined, plausible, significant)
   but moves the robot less than the tolerance: the localizer is a little off, the map is
