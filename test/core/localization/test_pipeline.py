@@ -235,3 +235,20 @@ def test_a_real_excerpt_kidnapped_by_0_3_m_is_found(intel_excerpt):
     assert overlapping and abs(overlapping[0].first - 60) <= 10
     assert overlapping[0].position_error == pytest.approx(0.3, rel=0.5)
     assert not any(e.last < 60 or e.first > 119 for e in result.episodes)
+
+
+def test_register_onto_points_refuses_bad_rows(truth, surface):
+    poses, ranges, _ = truth
+    scans = ScanSet.from_ranges(ranges[:5], poses[:5], MODEL)
+    surfaces = surface_points(scans.endpoints, scans.valid)
+    with pytest.raises(ValueError):
+        register_onto_points(surface.points, surface.normals, surfaces, [[0, 6]])
+    with pytest.raises(ValueError):
+        register_onto_points(surface.points, surface.normals, surfaces, [[3, 3]])
+    with pytest.raises(ValueError):
+        register_onto_points(surface.points, surface.normals[:-1], surfaces, [[0, 5]])
+    # a query far from every map point is undetermined, not an error
+    far = ScanSet.from_ranges(ranges[:5], poses[:5] + [100.0, 100.0, 0.0], MODEL)
+    found = register_onto_points(surface.points, surface.normals,
+                                 surface_points(far.endpoints, far.valid), [[0, 5]])
+    assert not found.determined[0] and np.isinf(found.covariances[0]).all()
