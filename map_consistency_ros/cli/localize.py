@@ -163,7 +163,7 @@ def summary(result: LocalizationResult, stamps: np.ndarray, source: str) -> str:
     if result.nothing_to_judge:
         lines.append(f'  nothing to judge: no window of travel held the '
                      f'{result.windows.flaggable_count} judged scans the test needs to flag '
-                     'one (scans mostly in unknown space or off the map)')
+                     'one (too few scans, or scans mostly in unknown space or off the map)')
     return '\n'.join(lines)
 
 
