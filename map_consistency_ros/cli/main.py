@@ -31,6 +31,7 @@ SUBCOMMANDS = [
     ('evaluate', 'evaluate', 'compare the test with the Hähnel baseline on a labelled suite of real maps'),
     ('tune', 'tune', 'find the DCS parameter Phi giving the most consistent map of a pose graph'),
     ('batch', 'batch', 'many logs, graphs and bags into one table, locally or on a Dask cluster'),
+    ('localize', 'localize', "judge a localizer's poses against a fixed map (localization mode)"),
     ('warm-up', 'warm_up', 'compile the kernels into the cache once after installing'),
 ]
 

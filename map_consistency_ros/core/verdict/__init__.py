@@ -6,7 +6,8 @@ geometry and the paper's test; `explanation` and `reporting` stay public modules
 tests patch."""
 from map_consistency_ros.core.verdict._registration import (RegistrationSettings, Registrations,
                                                             SurfacePoints, nearest_point,
-                                                            point_grid, register_submaps,
+                                                            point_grid, register_onto_points,
+                                                            register_submaps,
                                                             surface_points, symmetric_inverse)
 from map_consistency_ros.core.verdict._evidence import Evidence, evidence, flaggable_pair_count
 from map_consistency_ros.core.verdict.explanation import (CHANGE, CONSISTENT, INCONSISTENT,
@@ -25,7 +26,7 @@ from map_consistency_ros.core.verdict.reporting import (assessment_report, joine
 
 __all__ = [
     'RegistrationSettings', 'SurfacePoints', 'Registrations', 'surface_points',
-    'register_submaps',
+    'register_submaps', 'register_onto_points',
     'ExplanationSettings', 'Misalignment', 'ChangedPlace', 'Assessment', 'RegistrationCache',
     'explain', 'check_map', 'misaligned_endpoints', 'regions_alike',
     'CONSISTENT', 'INCONSISTENT', 'NOTHING_TO_JUDGE', 'Evidence', 'evidence',

@@ -445,3 +445,72 @@ def register_submaps(surfaces: SurfacePoints, tasks: np.ndarray,
         settings.min_matches)
     return Registrations(corrections=corrections, centroids=centroids, covariances=covariances,
                          matched=matched, determined=determined)
+
+
+def register_onto_points(reference_points: np.ndarray, reference_normals: np.ndarray,
+                         surfaces: SurfacePoints, queries: np.ndarray,
+                         settings: RegistrationSettings | None = None) -> Registrations:
+    """Register query submaps onto one fixed reference surface that is no scan (a map's points).
+
+    The reference of `register_submaps` is a submap of scans; here it is given as points with
+    normals (the occupied cells of a map, one point per cell, so not thinned again). Each
+    query sees only the reference points within the coarsest gate of its bounding box, the
+    same ICP (`_register_one`) runs on every query.
+
+    Parameters
+    ----------
+    reference_points: (M, 2) reference surface points, metres.
+    reference_normals: (M, 2) their unit normals (zero where a point has none: it is not
+        matched).
+    surfaces: the end points and normals of N scans (surface_points).
+    queries: (T, 2) rows (q0, q1): the scans q0:q1 of `surfaces` are a query submap.
+    settings: the ICP's settings; None for the defaults.
+
+    Returns
+    -------
+    The Registrations of the T queries onto the reference, in order (undetermined, with
+    infinite covariance, where a query or its part of the reference holds fewer than
+    min_matches points). Raises ValueError for rows outside the scans, empty ranges or
+    reference arrays of different shapes.
+    """
+    settings = settings or RegistrationSettings()
+    queries = np.ascontiguousarray(queries, dtype=np.int64).reshape(-1, 2)
+    reference_points = np.ascontiguousarray(reference_points, dtype=np.float64).reshape(-1, 2)
+    reference_normals = np.ascontiguousarray(reference_normals, dtype=np.float64).reshape(-1, 2)
+    if reference_points.shape != reference_normals.shape:
+        raise ValueError('reference points and normals must have the same shape')
+    scans = surfaces.offsets.size - 1
+    if queries.size and (queries.min() < 0 or queries.max() > scans
+                         or np.any(queries[:, 1] <= queries[:, 0])):
+        raise ValueError(f'query submaps must be non-empty scan ranges within [0, {scans}]')
+    usable = np.any(reference_normals != 0.0, axis=1)
+    reference_points, reference_normals = reference_points[usable], reference_normals[usable]
+    query_ranges, query_of_task = np.unique(queries, axis=0, return_inverse=True)
+    thinned = _thin_ranges(surfaces.points, surfaces.normals, surfaces.offsets,
+                           np.ascontiguousarray(query_ranges), settings.query_spacing, False)
+    points, _, starts, counts = thinned
+    # each query's own crop of the reference: the bounding box of its points and a gate
+    crops, crop_normals, crop_counts = [], [], np.zeros(len(query_ranges), dtype=np.int64)
+    reach = settings.gates[0]
+    for row in range(len(query_ranges)):
+        own = points[starts[row]:starts[row] + counts[row]]
+        if own.shape[0] == 0:
+            continue
+        low, high = own.min(axis=0) - reach, own.max(axis=0) + reach
+        inside = np.all((reference_points >= low) & (reference_points <= high), axis=1)
+        crops.append(reference_points[inside])
+        crop_normals.append(reference_normals[inside])
+        crop_counts[row] = int(inside.sum())
+    crop_starts = np.zeros(len(query_ranges), dtype=np.int64)
+    crop_starts[1:] = np.cumsum(crop_counts)[:-1]
+    references = (np.concatenate(crops) if crops else np.zeros((0, 2)),
+                  np.concatenate(crop_normals) if crops else np.zeros((0, 2)),
+                  crop_starts, crop_counts)
+    index = np.arange(len(query_ranges), dtype=np.int64)
+    corrections, centroids, covariances, matched, determined = _register_tasks(
+        references, thinned, index, index, np.asarray(settings.gates, dtype=np.float64),
+        settings.iterations, settings.trim, settings.min_matches)
+    take = query_of_task.reshape(-1)
+    return Registrations(corrections=corrections[take], centroids=centroids[take],
+                         covariances=covariances[take], matched=matched[take],
+                         determined=determined[take])
