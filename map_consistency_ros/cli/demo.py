@@ -28,9 +28,10 @@ from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.verdict import explain
 
 DEMO_BAG = 'intel_demo.mcap'
-# the wrong loop closure: (from, to) vertices of the viewpoints' pose graph (laser records 30
-# and 268, as the outputs name them), error (metres, metres, degrees)
-WRONG_LOOP = ((30, 260), (0.6, 0.0, 4.0))
+# the wrong loop closure: (from, to) vertices of the back-end's pose graph, the poses its
+# constraints name in stamp order (in the demo bag every laser record: records 30 and 268),
+# error (metres, metres, degrees)
+WRONG_LOOP = ((30, 268), (0.6, 0.0, 4.0))
 
 
 def demo_bag_path() -> Path:
@@ -107,10 +108,11 @@ def break_map(judgement: replay.BagJudgement, out: Path, args: argparse.Namespac
     scans = snapshot.scans()
     _, explanation = check.verdict_settings(args)
     assessment = explain(scans, snapshot.result, explanation)
-    # the graph's vertices are the viewpoints in stamp order, as the snapshot's scans; every
-    # output names them by their laser records
+    # every output names scans by their laser records: the viewpoints judged, and the two
+    # vertices of the graph the wrong loop closure joins
     scan_ids = judgement.replay.record_indices(snapshot.stamps)
-    start, end = int(scan_ids[start]), int(scan_ids[end])
+    start, end = (int(record) for record in
+                  judgement.replay.record_indices(slam.stamps[[start, end]]))
     print(f'\nThe same bag with one wrong loop closure (scan {end} seen from scan {start} '
           f'{error[0]:g} m and {error[2]:g} deg off), optimized by least squares:')
     print(report.format_summary(assessment, 'wrong loop closure', scan_ids))

@@ -14,3 +14,13 @@ def test_demo_replays_the_bundled_bag(strict_json, tmp_path, capsys):
     assert 'intel_demo.mcap' in out and f'scans                 {viewpoints}' in out
     for name in ('map.png', 'psi.png', 'pairs.csv'):
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_demo_catches_its_wrong_loop_closure_named_by_laser_records(strict_json, tmp_path,
+                                                                     capsys):
+    assert main(['demo', '--output', str(tmp_path), '--quiet']) == 0  # both verdicts expected
+    out = capsys.readouterr().out
+    assert 'one wrong loop closure (scan 268 seen from scan 30 0.6 m and 4 deg off)' in out
+    broken = strict_json((tmp_path / 'wrong_loop_closure' / 'report.json').read_text())
+    assert broken['verdict'] == 'inconsistent' and broken['misalignments']
+    assert 'the corrected map passes and the wrong loop closure is caught' in out
