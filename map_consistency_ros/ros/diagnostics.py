@@ -53,6 +53,8 @@ class MonitorHealth:
     explanation_failure: str = ''
     # the verdict is "nothing to judge": too few tested pairs (never OK, never consistent)
     nothing_to_judge: bool = False
+    # keyframes of the map the verdict judged (its pair counts are that map's); None before
+    judged_keyframes: int | None = None
 
     @property
     def keyframes(self) -> int:
@@ -161,6 +163,7 @@ def map_status(health: MonitorHealth, hardware_id: str) -> DiagnosticStatus:
         'buffered scans': str(health.buffered_scans),
         'scans lost by the middleware': str(health.middleware_lost),
         'poses without scan': str(health.poses_without_scan),
+        'judged keyframes': _optional(health.judged_keyframes, digits=0),
         'overlapping pairs': str(health.overlapping_pairs),
         'tested pairs': str(health.tested_pairs),
         'failed pairs': str(health.failed_pairs),

@@ -146,16 +146,22 @@ class Outputs:
         problem, when = inputs.last_problem
         stale_timeout = self._settings.stale_timeout
         # the snapshot, read before the intake's figures, holds only scans handed over by then
+        # the pair counts are the verdict's (the map it judged, with the pairs of its flagged
+        # scans that the partner budget left out), as its summary line and ~/report count
+        # them; before a verdict, the newest update's
+        counted = result if assessment is None else assessment.result
         scans = snapshot.scan_counts.with_intake(
             received=inputs.received_scans, queued=inputs.queued_scans,
             handed=inputs.handed_scans, lost_in_queue=inputs.lost_scans,
             unreadable=inputs.unreadable_scans)
         return MonitorHealth(
             scans=scans, buffered_scans=snapshot.buffered_scans,
-            overlapping_pairs=0 if result is None else result.overlapping_pair_count,
-            tested_pairs=0 if result is None else result.tested_pair_count,
-            failed_pairs=0 if result is None else result.failed_pair_count,
-            inconsistent_scans=0 if result is None else int(result.inconsistent.sum()),
+            overlapping_pairs=0 if counted is None else counted.overlapping_pair_count,
+            tested_pairs=0 if counted is None else counted.tested_pair_count,
+            failed_pairs=0 if counted is None else counted.failed_pair_count,
+            inconsistent_scans=0 if counted is None else int(counted.inconsistent.sum()),
+            judged_keyframes=(None if assessment is None
+                              else engine.verdict.snapshot.keyframe_count),
             unmatched_poses=snapshot.unmatched_poses,
             consistent=None if assessment is None else assessment.consistent,
             verdict='' if assessment is None else assessment.summary_line(),

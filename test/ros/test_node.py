@@ -338,9 +338,12 @@ def test_consistent_map_from_late_and_early_scans(probe, intel):
     _publish_path(probe, stamps, poses)
     _wait(lambda: probe.status_value('keyframes') == str(SCANS), what=f'{SCANS} keyframes')
     _wait(lambda: probe.consistent and probe.consistent[-1] is True, what='consistent = true')
-    status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.OK and s,
-                   what='diagnostics OK')
+    # the pair counts are those of the map the verdict judged: wait for the verdict on all
+    status = _wait(lambda: (s := probe.latest_status()) and s.level == DiagnosticStatus.OK
+                   and probe.status_value('judged keyframes') == str(SCANS) and s,
+                   what='diagnostics OK on the whole map')
     values = {kv.key: kv.value for kv in status.values}
+    assert values['judged keyframes'] == str(SCANS)
     assert values['inconsistent scans'] == '0'
     assert values['overlapping pairs'] == str(oracle.overlapping_pair_count)
     assert values['tested pairs'] == str(oracle.tested_pair_count)
