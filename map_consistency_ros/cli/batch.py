@@ -41,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import check, exit_codes, options, pool, replay, report
+from map_consistency_ros import pool
+from map_consistency_ros.cli import check, exit_codes, options, replay, report
 from map_consistency_ros.cli.exit_codes import (EXIT_BAD_INPUT, EXIT_CONSISTENT,
                                                 EXIT_INCONSISTENT, EXIT_INTERNAL_ERROR,
                                                 EXIT_NOTHING_TO_JUDGE)

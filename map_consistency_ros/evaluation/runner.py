@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import pool
+from map_consistency_ros import pool
 from map_consistency_ros.core.consistency import (BaselineParameters, ConsistencyParameters,
                                                   PairLikelihoods, check_consistency,
                                                   evaluate_pairs, local_pairs, local_scales,
@@ -315,7 +315,7 @@ def sweep_two_stage(maps: Sequence[SuiteMap], measured: Sequence[MeasuredMap],
 
 def pooled(function: Callable, maps: Sequence, arguments: tuple, workers: int | None,
            progress: Progress | None, scheduler: str | None = None) -> list:
-    """function(map, *arguments) for every map on the runner `batch` uses too (cli/pool.py):
+    """function(map, *arguments) for every map on the runner `batch` uses too (pool.py):
     local processes, or the Dask cluster of `scheduler`. A map whose worker process died stops
     the evaluation: its figures would be wrong without it.
 

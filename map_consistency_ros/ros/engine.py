@@ -19,7 +19,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numba
 
@@ -30,7 +30,6 @@ from map_consistency_ros.core.configuration import NodeSettings
 
 if TYPE_CHECKING:
     from map_consistency_ros.ros.intake import Intake
-    from map_consistency_ros.ros.outputs import Outputs
 
 # The second stage's niceness (0 the default, 19 the lowest priority): an explanation may take
 # as long as it likes, an update's latency is what the node promises.
@@ -39,6 +38,36 @@ EXPLAINER_NICENESS = 19
 # it off the updates, whose kernels, split across the cores, wait for their slowest part
 # (docs/node.md, Threads).
 EXPLAINER_THREADS = 1
+
+
+class EngineOutputs(Protocol):
+    """What the engine publishes through (ros/outputs.py's Outputs): the engine knows it by
+    this shape only, so that the outputs may import the engine and not the other way round.
+
+    `timing` (seconds per stage of the last update) and `latency` (arrival of a change -> its
+    verdict published) are the figures the engine fills in.
+    """
+
+    timing: dict[str, float]
+    latency: float | None
+
+    def publish(self, changed_at: float | None) -> None:
+        """Publish the engine's snapshot with its newest verdict (under the engine's lock).
+
+        Parameters
+        ----------
+        changed_at: the arrival (time.monotonic) of the input this answers; None for a new
+            second stage.
+        """
+
+    def publish_diagnostics(self) -> None:
+        """Publish /diagnostics."""
+
+    def greet_marker_subscribers(self) -> None:
+        """The whole marker array once more when a subscriber joined."""
+
+    def clear_markers(self) -> None:
+        """DELETEALL: the markers of a session that was reset go."""
 
 
 class NotMonitoring(Exception):
@@ -110,13 +139,13 @@ class Engine:
         self.verdict: LiveVerdict | None = None  # the newest, on `snapshot` or an older one
         self._verdict_serial = -1
         self._intake: Intake | None = None
-        self._outputs: Outputs | None = None
+        self._outputs: EngineOutputs | None = None
         self._worker = threading.Thread(target=self._work, name='map_consistency_worker',
                                         daemon=True)
         self._explainer = threading.Thread(target=self._explain_loop,
                                            name='map_consistency_explainer', daemon=True)
 
-    def start(self, intake: Intake, outputs: Outputs) -> None:
+    def start(self, intake: Intake, outputs: EngineOutputs) -> None:
         """Start both threads.
 
         Parameters

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from map_consistency_ros.cli import batch, check, pool
+from map_consistency_ros import pool
+from map_consistency_ros.cli import batch, check
 from map_consistency_ros.cli.main import main
 
 DEMO_BAG = 'intel_demo.mcap'
