@@ -219,16 +219,18 @@ def plot(path: Path, grid: OccupancyGrid, scans: ScanSet, result: LocalizationRe
     result: the localization result.
     source: the run's name, the title.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    figure, axes = plt.subplots(figsize=(9, 9))
+    # the map figures' conventions: the file's name as title, metres on the axes, the legend
+    # below them, the text laid out within the figure
+    from map_consistency_ros.cli import plots
+    figure, axes = plots.plt.subplots(figsize=(9, 9))
     shade = np.where(grid.cells == 100, 0.0, np.where(grid.cells == 0, 1.0, 0.75))
     corners = grid.cell_centres(np.array([0, grid.height - 1]), np.array([0, grid.width - 1]))
     half = 0.5 * grid.resolution
     axes.imshow(shade, cmap='gray', origin='lower', vmin=0, vmax=1,
                 extent=(corners[0, 0] - half, corners[1, 0] + half,
                         corners[0, 1] - half, corners[1, 1] + half))
+    for shade_value, name in ((0.0, 'map: occupied'), (1.0, 'map: free'), (0.75, 'map: unknown')):
+        axes.fill([], [], color=str(shade_value), edgecolor='0.5', label=name)
     poses = scans.sensor_poses
     axes.plot(poses[:, 0], poses[:, 1], color='tab:blue', linewidth=0.8, label='estimate')
     for index, episode in enumerate(result.episodes):
@@ -241,8 +243,11 @@ def plot(path: Path, grid: OccupancyGrid, scans: ScanSet, result: LocalizationRe
     for index, change in enumerate(result.changes):
         axes.plot(change.x, change.y, 'o', markerfacecolor='none', markeredgecolor='orange',
                   markersize=10, label='map out of date' if index == 0 else None)
-    axes.set_title(f'{source}: {result.outcome}')
+    axes.set_title(plots.wrapped(f'{plots.title_name(source)}: {result.outcome}', axes, 10),
+                   fontsize=10)
+    axes.set_xlabel('x [m]')
+    axes.set_ylabel('y [m]')
     axes.set_aspect('equal')
-    axes.legend(loc='best')
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
+    plots.add_legend(axes)
+    plots.lay_out(figure)
+    plots.save_figure(figure, path)
