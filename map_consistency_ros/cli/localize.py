@@ -31,6 +31,7 @@ from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.localization import (LocalizationResult, LocalizationSettings,
                                                    MapSurface, OccupancyGrid, localize,
                                                    prepare_reference, ray_cast_grid)
+from map_consistency_ros.core.parameters import settings_from_values
 from map_consistency_ros.core.verdict import plain, to_json
 from map_consistency_ros.io import carmen
 from map_consistency_ros.io.errors import InputError
@@ -38,6 +39,10 @@ from map_consistency_ros.io.staging import StagedOutputs
 
 MAP_SUFFIXES = ('.yaml', '.yml')
 RAY_CAST_RESOLUTION = 0.05  # metres: the cells of a map made from a mapping run
+# the paper's test's parameters the test against a map reads (core/localization)
+TEST_OPTIONS = ('alpha', 'local_alpha', 'failure_probability', 'binomial_alpha', 'local_window',
+                'min_points', 'trim_largest', 'default_scale', 'min_scale', 'fold_depth',
+                'fold_disagreement')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,6 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--map', type=Path, required=True, metavar='REFERENCE',
                         help='nav2 map YAML, or a mapping run (CARMEN log, .g2o with laser)')
     options.add_sensor_arguments(parser)
+    # the paper's test's options that apply against a map (no viewpoint folding in this mode)
+    options.add_parameter_arguments(parser, ConsistencyParameters, 'statistical test',
+                                    only=TEST_OPTIONS)
+    options.add_parameter_arguments(parser, LocalizationSettings, 'localization')
     group = parser.add_argument_group('output')
     group.add_argument('--report', type=Path, metavar='JSON',
                        help='write the findings and the parameters as strict JSON')
@@ -108,10 +117,15 @@ def run(args: argparse.Namespace) -> int:
     The exit code: 0 localized, 1 mislocalized, 4 nothing to judge (bad input raises
     InputError, mapped to 2 by cli/main.py).
     """
+    values = options.parameter_values(args)
+    try:
+        parameters = settings_from_values(ConsistencyParameters, values)
+        settings = settings_from_values(LocalizationSettings, values)
+    except ValueError as error:
+        raise InputError('options', str(error)) from None
     log = carmen.read_carmen_log(args.log)
     scans = _scans(log, log.ranges, log.laser_poses, args, str(args.log))
     grid = load_reference(args)
-    parameters, settings = ConsistencyParameters(), LocalizationSettings()
     result = localize(scans, log.timestamps, MapSurface.of(prepare_reference(grid)), parameters,
                       settings)
     stamps = log.timestamps

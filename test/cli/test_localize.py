@@ -111,3 +111,17 @@ def test_an_empty_run_exits_2(files, tmp_path, capsys):
     code = main(['localize', str(empty), '--map', str(files / 'map.yaml')])
     assert code == 2
     _one_line_error(capsys, 'empty.log')
+
+
+def test_the_test_and_localization_parameters_are_options_checked_as_everywhere(tmp_path,
+                                                                                capsys):
+    from map_consistency_ros.cli.main import main
+    # the parameters' own checks (core/parameters.py), one line naming the option's parameter
+    assert main(['localize', str(tmp_path / 'run.log'), '--map', str(tmp_path / 'map.yaml'),
+                 '--alpha', '0.7']) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and 'alpha' in error[0] and '0.7' in error[0]
+    assert main(['localize', str(tmp_path / 'run.log'), '--map', str(tmp_path / 'map.yaml'),
+                 '--max-translation', '-1']) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and 'max_translation' in error[0]
