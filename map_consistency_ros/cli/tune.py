@@ -32,7 +32,7 @@ import numpy as np
 from map_consistency_ros.cli import exit_codes, options, report
 from map_consistency_ros.cli.progress import ProgressBar
 from map_consistency_ros.core.backend import (InconsistencyProfile, TuningResult, TuningSettings,
-                                              tune_dcs, tuning_problem)
+                                              search_findings, tune_dcs, tuning_problem)
 from map_consistency_ros.core.consistency import check_consistency
 from map_consistency_ros.core.geometry import SensorModel
 from map_consistency_ros.core.verdict import INCONSISTENT, Assessment, explain
@@ -164,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         reference_scans=profile.scans_at(content.graph.odometry_chain())), explanation)
     tuned = explain(profile.scans_at(result.poses), result.consistency, explanation)
     _print_summary(source, result, tuned, baseline.value, baseline_test, elapsed)
-    warnings = search_warnings(result, settings)
+    warnings = search_findings(result, settings, options.option_name)
     for warning in warnings:
         print(f'map-consistency tune: {source}: warning: {warning}', file=sys.stderr)
     written = []
@@ -184,41 +184,6 @@ def run(args: argparse.Namespace) -> int:
     for name, path in written:
         print(f'  {name:<22}{path}')
     return exit_codes.of_outcome(tuned.outcome)
-
-
-def search_warnings(result: TuningResult, settings: TuningSettings) -> list[str]:
-    """What the user should know before trusting Phi*: a minimum at an end of the search
-    range, or a profile so flat that Phi* is arbitrary.
-
-    Parameters
-    ----------
-    result: the search's result (its at_bound and flat findings).
-    settings: the search's settings (its range and flat tolerance).
-
-    Returns
-    -------
-    One sentence per finding, without the source; none when Phi* is a minimum inside the
-    range.
-    """
-    warnings = []
-    if result.flat:
-        finite = result.profile_value[np.isfinite(result.profile_value)]
-        warnings.append(
-            f'M(Phi) is flat: {finite.min():.6g} m to {finite.max():.6g} m over Phi '
-            f'{settings.phi_min:g} to {settings.phi_max:g} (within --flat-tolerance '
-            f'{settings.flat_tolerance:g} of the smallest): no Phi makes the map measurably '
-            'more consistent, so Phi* is arbitrary; DCS has little to downweight in this graph')
-    if result.at_bound == 'phi_min':
-        warnings.append(
-            f'Phi* = {result.phi:.6g} lies at the lower end of the search (--phi-min '
-            f'{settings.phi_min:g}): a smaller Phi may give a smaller M; search lower with '
-            '--phi-min')
-    elif result.at_bound == 'phi_max':
-        warnings.append(
-            f'Phi* = {result.phi:.6g} lies at the upper end of the search (--phi-max '
-            f'{settings.phi_max:g}): a larger Phi may give a smaller M; search higher with '
-            '--phi-max')
-    return warnings
 
 
 def _print_summary(source: str, result: TuningResult, tuned: Assessment, baseline_value: float,

@@ -19,7 +19,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from map_consistency_ros.core.backend import TuningSettings
+from map_consistency_ros.core.backend import TuningSettings, search_findings
 from map_consistency_ros.ros.diagnostics import not_monitoring
 from map_consistency_ros.ros.engine import Engine, ExplanationFailed, NotMonitoring, ShuttingDown
 from map_consistency_ros.ros.outputs import Outputs
@@ -159,7 +159,11 @@ class Services:
         self._outputs.publish_tuning(result.phi, graph.stamps, result.poses)
         outside = (f'; {graph.keyframes_outside} keyframes named by no constraint left out'
                    if graph.keyframes_outside else '')
+        # what tune warns about, named by the node's parameters
+        findings = ''.join(f'; warning: {finding}'
+                           for finding in search_findings(result, self._tuning))
         return True, (f'Phi* = {result.phi:.6g} (M = {result.average_inconsistency:.4g} m): '
                       f'optimized map {retune.assessment.summary_line()}; '
                       f'{graph.graph.vertex_count} poses, {graph.graph.edge_count} edges, '
-                      f'{result.profile_phi.size} Phi values in {elapsed:.1f} s{outside}')
+                      f'{result.profile_phi.size} Phi values in {elapsed:.1f} s{outside}'
+                      f'{findings}')

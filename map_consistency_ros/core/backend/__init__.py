@@ -16,7 +16,7 @@ from map_consistency_ros.core.backend._posegraph import (CONSTRAINT_FIELDS, CONS
 from map_consistency_ros.core.backend._tuning import (Evaluation, InconsistencyProfile,
                                                       MeasuredPairs, TuningResult,
                                                       TuningSettings, measure_moved, profile_shape,
-                                                      tune_dcs)
+                                                      search_findings, tune_dcs)
 
 __all__ = [
     'PoseGraph', 'information_upper', 'information_from_upper', 'information_problem',
@@ -26,6 +26,7 @@ __all__ = [
     'OptimizationResult', 'SparseSystem', 'optimize', 'dcs_scales', 'robust_cost',
     'edge_residuals',
     'TuningSettings', 'Evaluation', 'TuningResult', 'InconsistencyProfile', 'tune_dcs',
+    'search_findings',
     'profile_shape',
     'MeasuredPairs', 'measure_moved',
 ]

@@ -480,3 +480,40 @@ def _flat(values: np.ndarray, tolerance: float) -> bool:
     definition of a flat profile, for the golden section's stop and the search's warning."""
     return bool(np.all(np.isfinite(values))
                 and values.max() - values.min() <= tolerance * values.min())
+
+
+def search_findings(result: TuningResult, settings: TuningSettings,
+                    name: Callable[[str], str] = str) -> list[str]:
+    """What a user should know before trusting Phi*: a minimum at an end of the search range,
+    or a profile so flat that Phi* is arbitrary (`tune` prints them, the node's retune answers
+    with them).
+
+    Parameters
+    ----------
+    result: the search's result (its at_bound and flat findings).
+    settings: the search's settings (its range and flat tolerance).
+    name: how the caller names a setting (an option '--phi-max', a node parameter 'phi_max').
+
+    Returns
+    -------
+    One sentence per finding; none when Phi* is a minimum inside the range.
+    """
+    findings = []
+    if result.flat:
+        finite = result.profile_value[np.isfinite(result.profile_value)]
+        findings.append(
+            f'M(Phi) is flat: {finite.min():.6g} m to {finite.max():.6g} m over Phi '
+            f'{settings.phi_min:g} to {settings.phi_max:g} (within {name("flat_tolerance")} '
+            f'{settings.flat_tolerance:g} of the smallest): no Phi makes the map measurably '
+            'more consistent, so Phi* is arbitrary; DCS has little to downweight in this graph')
+    if result.at_bound == 'phi_min':
+        findings.append(
+            f'Phi* = {result.phi:.6g} lies at the lower end of the search ({name("phi_min")} '
+            f'{settings.phi_min:g}): a smaller Phi may give a smaller M; search lower with '
+            f'{name("phi_min")}')
+    elif result.at_bound == 'phi_max':
+        findings.append(
+            f'Phi* = {result.phi:.6g} lies at the upper end of the search ({name("phi_max")} '
+            f'{settings.phi_max:g}): a larger Phi may give a smaller M; search higher with '
+            f'{name("phi_max")}')
+    return findings

@@ -208,3 +208,22 @@ def test_scan_vertices_must_name_one_vertex_per_scan_in_order(intel_excerpt, ver
         InconsistencyProfile(graph, ranges[:3], model, offset, SEARCH, scan_vertices=vertices)
     with pytest.raises(ValueError, match='3 scans for'):
         InconsistencyProfile(graph, ranges[:3], model, offset, SEARCH)
+
+
+def test_search_findings_name_the_settings_as_the_caller_does():
+    import dataclasses
+    from map_consistency_ros.core.backend import search_findings
+    from map_consistency_ros.core.backend._tuning import TuningResult
+    settings = TuningSettings(phi_min=1e-6, phi_max=2.0)
+    values = np.array([5.504, 5.505, 5.506])
+    fields = {field.name: None for field in dataclasses.fields(TuningResult)}
+    result = TuningResult(**{**fields, 'phi': 2.0, 'profile_value': values,
+                             'profile_phi': np.array([0.5, 1.0, 2.0]), 'at_bound': 'phi_max',
+                             'flat': True})
+    node = search_findings(result, settings)
+    cli = search_findings(result, settings, lambda name: '--' + name.replace('_', '-'))
+    assert len(node) == len(cli) == 2
+    assert 'M(Phi) is flat: 5.504 m to 5.506 m' in node[0] and '(within flat_tolerance' in node[0]
+    assert 'upper end of the search (phi_max 2)' in node[1]
+    assert 'upper end of the search (--phi-max 2)' in cli[1]
+    assert search_findings(dataclasses.replace(result, at_bound=None, flat=False), settings) == []
