@@ -29,6 +29,7 @@ import math
 import numba
 import numpy as np
 
+from map_consistency_ros.core.geometry import se2
 from map_consistency_ros.core.geometry._measure import pairs_point_distances
 from map_consistency_ros.core.geometry._scan_geometry import ScanSet
 
@@ -114,10 +115,9 @@ def same_pose(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     -------
     (...) bool.
     """
-    first, second = np.asarray(first, dtype=np.float64), np.asarray(second, dtype=np.float64)
-    step = second - first
-    heading = np.abs(np.remainder(step[..., 2] + math.pi, 2.0 * math.pi) - math.pi)
-    return (np.hypot(step[..., 0], step[..., 1]) < SAME_POSITION) & (heading < SAME_HEADING)
+    step = np.asarray(second, dtype=np.float64) - np.asarray(first, dtype=np.float64)
+    return ((np.hypot(step[..., 0], step[..., 1]) < SAME_POSITION)
+            & (np.abs(se2.wrap_angle(step[..., 2])) < SAME_HEADING))
 
 
 def disagreements(scans: ScanSet, pairs: np.ndarray, depth: float) -> np.ndarray:

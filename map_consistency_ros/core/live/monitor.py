@@ -670,8 +670,8 @@ class ConsistencyMonitor:
                        stamp: float) -> bool:
         """Whether pose `index` of the trajectory, whose scan is the buffered one at `stamp`, is
         a viewpoint: far enough from the nearest earlier keyframe of the trajectory, pose
-        `earlier`, or disagreeing with that keyframe's scan (core/geometry/_viewpoints.py, as
-        `check` selects them). A pose with no earlier keyframe (-1: the first, or a late first
+        `earlier`, or repeating that keyframe's pose while its scan disagrees with the
+        keyframe's (core/geometry/_viewpoints.py, as `check` selects them). A pose with no earlier keyframe (-1: the first, or a late first
         scan) always is."""
         if earlier < 0:
             return True
