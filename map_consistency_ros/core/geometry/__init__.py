@@ -4,7 +4,7 @@ finds the pairs that can overlap, the pairwise inconsistency measure M_ij / n_ij
 (numba kernels), and viewpoints (the scans that see the world from a new place). Knows nothing
 of the test, the verdict or where the scans came from."""
 from map_consistency_ros.core.geometry import se2
-from map_consistency_ros.core.geometry._arrays import read_only, spans, with_rows
+from map_consistency_ros.core.geometry._arrays import read_only, spans, true_runs, with_rows
 from map_consistency_ros.core.geometry._measure import (PairMeasures, measure_pairs,
                                                         pair_measures, pair_measures_naive,
                                                         pairs_point_distances, point_distances)
@@ -24,5 +24,5 @@ __all__ = [
     'pairs_point_distances',
     'viewpoint_rows', 'is_new_viewpoint', 'disagreement', 'disagreements', 'same_pose',
     'SAME_POSITION', 'SAME_HEADING',
-    'with_rows', 'read_only', 'spans',
+    'with_rows', 'read_only', 'spans', 'true_runs',
 ]

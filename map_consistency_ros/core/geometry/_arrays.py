@@ -57,3 +57,19 @@ def spans(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lengths = high - low
     owner = np.repeat(np.arange(lengths.size), lengths)
     return np.repeat(low - np.cumsum(lengths) + lengths, lengths) + np.arange(owner.size), owner
+
+
+def true_runs(mask: np.ndarray) -> np.ndarray:
+    """The runs of consecutive True values of a boolean sequence.
+
+    Parameters
+    ----------
+    mask: (N,) bool.
+
+    Returns
+    -------
+    (R, 2) int64 half-open bounds [start, end) of each run, in order; (0, 2) when none.
+    """
+    padded = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return edges.reshape(-1, 2).astype(np.int64)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyParameters, statistics
-from map_consistency_ros.core.geometry import ScanSet, se2
+from map_consistency_ros.core.geometry import ScanSet, se2, true_runs
 from map_consistency_ros.core.localization._grid_measure import (GridReference,
                                                                  grid_point_distances)
 from map_consistency_ros.core.localization._map_surface import map_surface
@@ -483,9 +483,7 @@ def _episodes(scans: ScanSet, submaps: Submaps, tests: ScanTests,
     inside = covered > 0
     mislocalized = np.zeros(count, dtype=bool)
     episodes = []
-    padded = np.concatenate([[False], inside, [False]])
-    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
-    for first, end in zip(edges[::2].tolist(), edges[1::2].tolist()):
+    for first, end in true_runs(inside).tolist():
         # better at the estimate: judged, not failed, and no better after the correction
         fine = (tests.judged[first:end] & ~tests.failed[first:end]
                 & ~(after_psi[first:end] < tests.psi[first:end]))

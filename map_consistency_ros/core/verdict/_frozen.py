@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from map_consistency_ros.core.consistency import ConsistencyParameters
-from map_consistency_ros.core.geometry import ScanSet, same_pose, viewpoint_rows
+from map_consistency_ros.core.geometry import ScanSet, same_pose, true_runs, viewpoint_rows
 
 
 @dataclass(frozen=True)
@@ -45,9 +45,9 @@ def frozen_estimates(scans: ScanSet, parameters: ConsistencyParameters,
     poses = scans.sensor_poses
     if poses.shape[0] <= min_changes:
         return ()
-    same = same_pose(poses[:-1], poses[1:])
     found = []
-    for start, end in _runs(same):
+    # a run of steps [start, end) that repeat the pose joins scans start..end
+    for start, end in true_runs(same_pose(poses[:-1], poses[1:])).tolist():
         rows = np.arange(start, end + 1)
         if rows.size <= min_changes:
             continue
@@ -57,10 +57,3 @@ def frozen_estimates(scans: ScanSet, parameters: ConsistencyParameters,
         if changed.size - 1 >= min_changes:
             found.append(FrozenEstimate(scans=rows, changes=int(changed.size - 1)))
     return tuple(found)
-
-
-def _runs(same: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last) scan of every run of consecutive steps in `same`."""
-    padded = np.concatenate([[False], same, [False]])
-    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]

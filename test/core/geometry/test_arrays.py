@@ -1,9 +1,9 @@
-"""Growing arrays by rows; read-only views."""
+"""Growing arrays by rows; read-only views; runs of a mask."""
 import numpy as np
 
 import pytest
 
-from map_consistency_ros.core.geometry import read_only, spans, with_rows
+from map_consistency_ros.core.geometry import read_only, spans, true_runs, with_rows
 
 
 def test_rows_are_kept_and_the_new_ones_filled():
@@ -36,3 +36,17 @@ def test_spans_lay_ranges_end_to_end_as_a_loop_would():
     assert owners.tolist() == [k for _, k in expected] == [0, 0, 2, 2, 2, 3, 3]
     empty_values, empty_owners = spans(np.zeros(0, np.int64), np.zeros(0, np.int64))
     assert empty_values.size == 0 and empty_owners.size == 0
+
+
+@pytest.mark.parametrize('mask', [[], [False], [True], [True, True, False, True],
+                                  [False, True, True, True, False, False, True, True]])
+def test_true_runs_are_the_runs_a_loop_finds(mask):
+    expected, start = [], None
+    for index, value in enumerate(mask + [False]):
+        if value and start is None:
+            start = index
+        elif not value and start is not None:
+            expected.append([start, index])
+            start = None
+    runs = true_runs(np.array(mask, dtype=bool))
+    assert runs.shape == (len(expected), 2) and runs.tolist() == expected
