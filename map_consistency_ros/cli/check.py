@@ -99,27 +99,59 @@ def load_scans(args: argparse.Namespace, parameters: ConsistencyParameters
     if args.log.is_dir():
         raise InputError(str(args.log), 'is a folder; check takes one log or .g2o graph '
                                         '(batch takes folders)')
-    if is_graph(args.log):
+    log, ranges, poses, names = read_laser_records(args.log)
+    selected = np.arange(0, len(ranges), args.every)
+    every = place_scans(args, log, ranges[selected], poses[selected], str(args.log))
+    rows = select_viewpoints(every, parameters)
+    return log, names[selected[rows]], every.take(rows)
+
+
+def read_laser_records(path: Path) -> tuple[carmen.CarmenLog, np.ndarray, np.ndarray,
+                                            np.ndarray]:
+    """The laser records of a CARMEN log, or of a g2o graph with ROBOTLASER1 lines.
+
+    Parameters
+    ----------
+    path: the log or graph (`is_graph`).
+
+    Returns
+    -------
+    (the laser records, their ranges (N, K), laser poses (N, 3), names (N,): record positions,
+    or vertex ids of a graph). InputError for an input that cannot be read, or a graph without
+    exactly one scan per vertex.
+    """
+    if is_graph(path):
         # the graph reader brings scipy.sparse (the pose graph): only graphs pay for it
         from map_consistency_ros.io.g2o import read_g2o
-        content = read_g2o(args.log)
-        log = content.laser
-        ranges = content.scan_ranges()  # InputError without exactly one scan per vertex
-        poses = se2.compose(content.graph.poses, content.laser_offset)
-        names = content.vertex_ids
-    else:
-        log = carmen.read_carmen_log(args.log)
-        ranges, poses = log.ranges, log.laser_poses
-        names = np.arange(log.scan_count)
-    selected = np.arange(0, len(ranges), args.every)
+        content = read_g2o(path)
+        return (content.laser, content.scan_ranges(),
+                se2.compose(content.graph.poses, content.laser_offset), content.vertex_ids)
+    log = carmen.read_carmen_log(path)
+    return log, log.ranges, log.laser_poses, np.arange(log.scan_count)
+
+
+def place_scans(args: argparse.Namespace, log: carmen.CarmenLog, ranges: np.ndarray,
+                poses: np.ndarray, source: str) -> ScanSet:
+    """Scans placed at laser poses, with the sensor model of the log and the options.
+
+    Parameters
+    ----------
+    args: parsed sensor options (options.add_sensor_arguments).
+    log: the laser records (their beam count and stated range).
+    ranges: (N, K) ranges.
+    poses: (N, 3) laser poses.
+    source: the input, named by a bad value's error.
+
+    Returns
+    -------
+    The ScanSet; InputError naming `source` for a model or scans that cannot be made.
+    """
     try:
         model = carmen.sensor_model(log, fov=options.fov_radians(args),
                                     max_range=args.max_range, range_min=args.range_min)
-        every = ScanSet.from_ranges(ranges[selected], poses[selected], model)
+        return ScanSet.from_ranges(ranges, poses, model)
     except ValueError as error:
-        raise InputError(str(args.log), str(error)) from None
-    rows = select_viewpoints(every, parameters)
-    return log, names[selected[rows]], every.take(rows)
+        raise InputError(source, str(error)) from None
 
 
 def is_graph(path: Path) -> bool:

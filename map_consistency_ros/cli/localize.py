@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from map_consistency_ros.cli import exit_codes, options
+from map_consistency_ros.cli import check, exit_codes, options
 from map_consistency_ros.core.consistency import ConsistencyParameters
 from map_consistency_ros.core.geometry import ScanSet, se2
 from map_consistency_ros.core.localization import (LocalizationResult, LocalizationSettings,
@@ -68,16 +68,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='write the map, the estimated path, episodes and changes')
 
 
-def _scans(log: carmen.CarmenLog, ranges: np.ndarray, poses: np.ndarray,
-           args: argparse.Namespace, source: str) -> ScanSet:
-    try:
-        model = carmen.sensor_model(log, fov=options.fov_radians(args),
-                                    max_range=args.max_range, range_min=args.range_min)
-        return ScanSet.from_ranges(ranges, poses, model)
-    except ValueError as error:
-        raise InputError(source, str(error)) from None
-
-
 def load_reference(args: argparse.Namespace) -> OccupancyGrid:
     """The reference map: read, or ray-cast from a mapping run's scans.
 
@@ -93,15 +83,9 @@ def load_reference(args: argparse.Namespace) -> OccupancyGrid:
     if path.suffix.lower() in MAP_SUFFIXES:
         from map_consistency_ros.io.occupancy_map import read_occupancy_map
         return read_occupancy_map(path).grid
-    if path.suffix.lower() == '.g2o':
-        from map_consistency_ros.io.g2o import read_g2o
-        content = read_g2o(path)
-        log, ranges = content.laser, content.scan_ranges()
-        poses = se2.compose(content.graph.poses, content.laser_offset)
-    else:
-        log = carmen.read_carmen_log(path)
-        ranges, poses = log.ranges, log.laser_poses
-    grid, _, _ = ray_cast_grid(_scans(log, ranges, poses, args, str(path)), RAY_CAST_RESOLUTION)
+    log, ranges, poses, _ = check.read_laser_records(path)
+    grid, _, _ = ray_cast_grid(check.place_scans(args, log, ranges, poses, str(path)),
+                               RAY_CAST_RESOLUTION)
     return grid
 
 
@@ -124,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise InputError('options', str(error)) from None
     log = carmen.read_carmen_log(args.log)
-    scans = _scans(log, log.ranges, log.laser_poses, args, str(args.log))
+    scans = check.place_scans(args, log, log.ranges, log.laser_poses, str(args.log))
     grid = load_reference(args)
     result = localize(scans, log.timestamps, MapSurface.of(prepare_reference(grid)), parameters,
                       settings)

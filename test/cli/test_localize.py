@@ -125,3 +125,4 @@ def test_the_test_and_localization_parameters_are_options_checked_as_everywhere(
                  '--max-translation', '-1']) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and 'max_translation' in error[0]
+
