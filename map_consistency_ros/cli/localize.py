@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     The exit code: 0 localized, 1 mislocalized, 4 nothing to judge (bad input raises
     InputError, mapped to 2 by cli/main.py).
     """
+    options.check_sensor_options(args)
     values = options.parameter_values(args)
     try:
         parameters = settings_from_values(ConsistencyParameters, values)

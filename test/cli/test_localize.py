@@ -126,3 +126,10 @@ def test_the_test_and_localization_parameters_are_options_checked_as_everywhere(
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and 'max_translation' in error[0]
 
+
+def test_a_bad_sensor_option_is_one_line_naming_the_option(tmp_path, capsys):
+    from map_consistency_ros.cli.main import main
+    assert main(['localize', str(tmp_path / 'run.log'), '--map', str(tmp_path / 'map.yaml'),
+                 '--max-range', '-3']) == 2
+    assert capsys.readouterr().err.strip() == (
+        'map-consistency localize: options: --max-range must be positive, got -3')
